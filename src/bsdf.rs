@@ -1,0 +1,142 @@
+//! Scattering at surfaces: Lambert, Schlick mirror, smooth dielectric. Used by both the photon
+//! tracer and the camera pass, so each formula lives here once.
+
+use crate::Rgb;
+use glam::Vec3;
+
+/// Mirror reflection of `d` (pointing towards the surface) about `n`.
+pub fn reflect(d: Vec3, n: Vec3) -> Vec3 {
+    d - 2.0 * d.dot(n) * n
+}
+
+/// Refraction of `d` (towards the surface) through a surface with normal `n` facing `d`'s
+/// origin side, `eta = n_incident / n_transmitted`. None on total internal reflection.
+pub fn refract(d: Vec3, n: Vec3, eta: f32) -> Option<Vec3> {
+    let cos_i = -d.dot(n);
+    let sin2_t = eta * eta * (1.0 - cos_i * cos_i).max(0.0);
+    if sin2_t >= 1.0 {
+        return None;
+    }
+    let cos_t = (1.0 - sin2_t).sqrt();
+    Some((eta * d + (eta * cos_i - cos_t) * n).normalize())
+}
+
+/// Unpolarised Fresnel reflectance of a smooth dielectric interface.
+/// `cos_i` is the cosine on the incident side, `eta = n_i / n_t`.
+pub fn fresnel_dielectric(cos_i: f32, eta: f32) -> f32 {
+    let cos_i = cos_i.clamp(0.0, 1.0);
+    let sin2_t = eta * eta * (1.0 - cos_i * cos_i);
+    if sin2_t >= 1.0 {
+        return 1.0;
+    }
+    let cos_t = (1.0 - sin2_t).sqrt();
+    let rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    let rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    0.5 * (rs * rs + rp * rp)
+}
+
+/// Schlick's approximation `F0 + (1 − F0)(1 − cosθ)⁵` (Cycles' metal with white F82 tint).
+pub fn fresnel_schlick(f0: Rgb, cos_i: f32) -> Rgb {
+    let m = (1.0 - cos_i.clamp(0.0, 1.0)).powi(5);
+    f0 + (Rgb::ONE - f0) * m
+}
+
+/// Lambert BRDF value `albedo / π`.
+pub fn lambert(albedo: Rgb) -> Rgb {
+    albedo * std::f32::consts::FRAC_1_PI
+}
+
+/// The outcome of a specular interaction: new direction, weight, and whether it crossed.
+#[derive(Clone, Copy, Debug)]
+pub struct SpecularSample {
+    /// New unit direction.
+    pub direction: Vec3,
+    /// Throughput multiplier.
+    pub weight: Rgb,
+    /// True if the ray went through the surface.
+    pub transmitted: bool,
+}
+
+/// Both branches at a smooth dielectric for a ray `d` hitting a surface with geometric normal
+/// `ng` (any orientation). Returns (reflection, refraction) with Fresnel weights; refraction is
+/// None on total internal reflection (then reflection carries weight 1).
+pub fn dielectric_branches(d: Vec3, ng: Vec3, ior: f32, tint: Rgb) -> (SpecularSample, Option<SpecularSample>) {
+    let entering = d.dot(ng) < 0.0;
+    let n = if entering { ng } else { -ng };
+    let eta = if entering { 1.0 / ior } else { ior };
+    let f = fresnel_dielectric(-d.dot(n), eta);
+    let r = SpecularSample {
+        direction: reflect(d, n),
+        weight: Rgb::splat(f),
+        transmitted: false,
+    };
+    match refract(d, n, eta) {
+        Some(t) if f < 1.0 => {
+            // Tint applies once per crossing into or out of the material (Blender's glass colour
+            // tints each passage); with white glass this is 1.
+            let tint = if entering { tint } else { Rgb::ONE };
+            (
+                r,
+                Some(SpecularSample {
+                    direction: t,
+                    weight: tint * (1.0 - f),
+                    transmitted: true,
+                }),
+            )
+        }
+        _ => (SpecularSample { weight: Rgb::ONE, ..r }, None),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sampling::{uniform_sphere, Rng};
+
+    #[test]
+    fn fresnel_normal_incidence_glass() {
+        // ((1 − 1.5)/(1 + 1.5))² = 0.04
+        assert!((fresnel_dielectric(1.0, 1.0 / 1.5) - 0.04).abs() < 1e-6);
+        assert!((fresnel_dielectric(1.0, 1.5) - 0.04).abs() < 1e-6);
+        // Total internal reflection beyond the critical angle inside glass.
+        assert_eq!(fresnel_dielectric(0.3, 1.5), 1.0);
+        assert!((fresnel_schlick(Rgb::splat(0.95), 1.0) - Rgb::splat(0.95)).length() < 1e-6);
+        assert!((fresnel_schlick(Rgb::splat(0.95), 0.0) - Rgb::ONE).length() < 1e-6);
+    }
+
+    #[test]
+    fn dielectric_conserves_energy_and_obeys_snell() {
+        let mut rng = Rng::keyed(9, 9, 9);
+        let ng = Vec3::Y;
+        for _ in 0..10_000 {
+            let d = uniform_sphere(rng.uniform2());
+            if d.dot(ng).abs() < 1e-3 {
+                continue;
+            }
+            let (r, t) = dielectric_branches(d, ng, 1.5, Rgb::ONE);
+            let total = r.weight.x + t.map(|t| t.weight.x).unwrap_or(0.0);
+            assert!((total - 1.0).abs() < 1e-5, "energy {total}");
+            assert!((r.direction.length() - 1.0).abs() < 1e-4);
+            // Reflection stays on the incident side.
+            assert!(r.direction.dot(ng) * d.dot(ng) < 0.0);
+            if let Some(t) = t {
+                let entering = d.dot(ng) < 0.0;
+                let (n1, n2) = if entering { (1.0, 1.5) } else { (1.5, 1.0) };
+                let sin_i = (1.0 - d.dot(ng).powi(2)).sqrt();
+                let sin_t = (1.0 - t.direction.dot(ng).powi(2)).sqrt();
+                assert!((n1 * sin_i - n2 * sin_t).abs() < 1e-3, "snell");
+                assert!(t.direction.dot(ng) * d.dot(ng) > 0.0, "transmission crosses");
+            }
+        }
+    }
+
+    #[test]
+    fn fresnel_reciprocity() {
+        // Reflectance is the same from either side for corresponding angles.
+        let cos_i = 0.8f32;
+        let eta = 1.0 / 1.5;
+        let sin_t = eta * (1.0 - cos_i * cos_i).sqrt();
+        let cos_t = (1.0 - sin_t * sin_t).sqrt();
+        assert!((fresnel_dielectric(cos_i, eta) - fresnel_dielectric(cos_t, 1.5)).abs() < 1e-5);
+    }
+}

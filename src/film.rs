@@ -1,0 +1,55 @@
+//! The image being rendered: colour plus optional AOV layers.
+
+use crate::Rgb;
+use glam::Vec3;
+
+/// Per-pixel auxiliary values, recorded at the first hit.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Aov {
+    /// Diffuse albedo of the first diffuse surface.
+    pub albedo: Rgb,
+    /// Shading normal at the first hit (facing the camera).
+    pub normal: Vec3,
+    /// Distance from the camera to the first hit (0 for none).
+    pub depth: f32,
+    /// Photon density at the first diffuse hit [photons/m²].
+    pub density: f32,
+    /// Radius used by the photon estimate at the first diffuse hit [m].
+    pub radius: f32,
+}
+
+/// A rendered image with AOVs, row-major, top row first.
+#[derive(Clone, Debug)]
+pub struct Film {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Radiance per pixel.
+    pub color: Vec<Rgb>,
+    /// AOVs per pixel.
+    pub aov: Vec<Aov>,
+}
+
+impl Film {
+    /// A black film.
+    pub fn new(width: u32, height: u32) -> Self {
+        let n = (width as usize) * (height as usize);
+        Film {
+            width,
+            height,
+            color: vec![Rgb::ZERO; n],
+            aov: vec![Aov::default(); n],
+        }
+    }
+
+    /// Mean of the colour channels over all pixels.
+    pub fn mean(&self) -> Rgb {
+        self.color.iter().copied().sum::<Rgb>() / self.color.len().max(1) as f32
+    }
+
+    /// Pixels with NaN or infinity.
+    pub fn nonfinite(&self) -> usize {
+        self.color.iter().filter(|c| !c.is_finite()).count()
+    }
+}

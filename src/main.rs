@@ -1,0 +1,423 @@
+//! The `photongrid` command line: argument parsing, logging and progress set-up, exit codes.
+#![forbid(unsafe_code)]
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Parser, Subcommand};
+use photongrid::output::{self, AovSelection};
+use photongrid::pipeline::{self, PhaseTimes};
+use photongrid::progress::{emit_json, Progress, ProgressMode};
+use photongrid::render::DirectLighting;
+use photongrid::scene::gltf::{load_with, LoadOptions};
+use photongrid::Settings;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Photon-mapping renderer for Blender-exported glTF scenes, caustics included.
+#[derive(Parser, Debug)]
+#[command(name = "photongrid", version, about, long_about = None)]
+struct Cli {
+    /// More log output on stderr (-v: info, -vv: debug). RUST_LOG overrides.
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    verbose: u8,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Render one or more cameras of a .glb/.gltf scene to EXR.
+    Render(RenderArgs),
+    /// Show what was loaded from a scene: materials, lights, cameras, and what was approximated or ignored.
+    Info {
+        /// The scene (.glb or .gltf).
+        scene: PathBuf,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Compare an image with a reference (same metrics as shared/tools/score.py).
+    Compare {
+        /// The rendered image (EXR).
+        image: PathBuf,
+        /// The reference image (EXR).
+        reference: PathBuf,
+        /// Leave out pixels where this EXR's luminance is > 0.5 (e.g. a specular mask).
+        #[arg(long)]
+        mask: Option<PathBuf>,
+        /// Block size for the block metrics.
+        #[arg(long, default_value_t = 8)]
+        block: usize,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(Args, Debug)]
+struct RenderArgs {
+    /// The scene (.glb or .gltf).
+    scene: PathBuf,
+    /// Camera node name or glTF camera index; repeat for several, or "all". Default: the first camera.
+    #[arg(short, long = "camera", value_name = "NAME|INDEX|all")]
+    cameras: Vec<String>,
+    /// Output EXR. With several cameras, "{camera}" in the path is replaced by the camera name
+    /// (otherwise the name is appended before the extension).
+    #[arg(short, long, value_name = "OUT.exr")]
+    output: PathBuf,
+    /// Photon paths to emit.
+    #[arg(long, default_value_t = Settings::default().photons)]
+    photons: usize,
+    /// Photons per radiance estimate (k nearest neighbours).
+    #[arg(long, visible_alias = "neighbors", default_value_t = Settings::default().neighbours)]
+    neighbours: usize,
+    /// Camera rays per pixel (jittered, 1-pixel box filter).
+    #[arg(long, default_value_t = Settings::default().spp)]
+    spp: u32,
+    /// Random seed: the same seed and settings give the same image.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Image width (default: the camera's aspect at 480 lines).
+    #[arg(long)]
+    width: Option<u32>,
+    /// Image height.
+    #[arg(long)]
+    height: Option<u32>,
+    /// Direct light from shadow rays, or from photons like the paper's single photon map.
+    #[arg(long, value_enum, default_value_t = DirectLighting::ShadowRays)]
+    direct: DirectLighting,
+    /// Shadow rays per emissive-surface light evaluation.
+    #[arg(long, default_value_t = Settings::default().light_samples)]
+    light_samples: u32,
+    /// Photon bounces before a path stops.
+    #[arg(long, default_value_t = Settings::default().max_photon_depth)]
+    max_photon_depth: u32,
+    /// Mirror/glass bounces followed from the camera.
+    #[arg(long, default_value_t = Settings::default().max_specular_depth)]
+    max_specular_depth: u32,
+    /// Largest photon gather radius, as a fraction of the scene diagonal.
+    #[arg(long, default_value_t = Settings::default().max_radius_rel)]
+    max_radius: f32,
+    /// Add AOV layers to the EXR: albedo, N, depth, photons (density and radius).
+    #[arg(long)]
+    aovs: bool,
+    /// Also write an sRGB PNG preview here (same {camera} rule as --output).
+    #[arg(long, value_name = "PREVIEW.png")]
+    png: Option<PathBuf>,
+    /// Exposure of the PNG preview in stops.
+    #[arg(long, default_value_t = 0.0)]
+    exposure: f32,
+    /// Write settings, phase seconds, photon counts and peak memory as JSON here.
+    #[arg(long, value_name = "STATS.json")]
+    stats: Option<PathBuf>,
+    /// Progress display: bars on a terminal, JSON lines on stderr for programs, or nothing.
+    #[arg(long, value_enum, default_value_t = ProgressMode::Auto)]
+    progress: ProgressMode,
+    /// Allow buffers and images outside the scene's folder.
+    #[arg(long)]
+    allow_external_uris: bool,
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let json = matches!(&cli.command, Command::Render(r) if r.progress == ProgressMode::Json);
+    init_logging(cli.verbose);
+    if let Err(e) = run(cli) {
+        if json {
+            emit_json(&serde_json::json!({"event": "error", "message": format!("{e:#}")}));
+        }
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+fn init_logging(verbose: u8) {
+    let level = match verbose {
+        0 => "warn",
+        1 => "info",
+        _ => "debug",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(level));
+    use std::io::IsTerminal;
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal())
+        .with_target(false)
+        .try_init();
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Render(args) => render(args),
+        Command::Info { scene, json } => info(&scene, json),
+        Command::Compare {
+            image,
+            reference,
+            mask,
+            block,
+            json,
+        } => compare(&image, &reference, mask.as_deref(), block, json),
+    }
+}
+
+fn settings_of(a: &RenderArgs) -> Settings {
+    Settings {
+        photons: a.photons,
+        neighbours: a.neighbours,
+        spp: a.spp,
+        seed: a.seed,
+        width: a.width,
+        height: a.height,
+        direct: a.direct,
+        light_samples: a.light_samples,
+        max_photon_depth: a.max_photon_depth,
+        max_specular_depth: a.max_specular_depth,
+        max_radius_rel: a.max_radius,
+        ..Settings::default()
+    }
+}
+
+/// Output path for a camera: `{camera}` replaced, or the name appended when several cameras share one path.
+fn output_for(pattern: &Path, camera: &str, several: bool) -> PathBuf {
+    let s = pattern.to_string_lossy();
+    let safe: String = camera
+        .chars()
+        .map(|c| {
+            if c.is_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    if s.contains("{camera}") {
+        return PathBuf::from(s.replace("{camera}", &safe));
+    }
+    if !several {
+        return pattern.to_path_buf();
+    }
+    let stem = pattern
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_default();
+    let ext = pattern
+        .extension()
+        .map(|e| format!(".{}", e.to_string_lossy()))
+        .unwrap_or_default();
+    pattern.with_file_name(format!("{stem}_{safe}{ext}"))
+}
+
+fn check_writable(path: &Path) -> Result<()> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    if !dir.is_dir() {
+        bail!(
+            "{}: the folder {} does not exist; create it first",
+            path.display(),
+            dir.display()
+        );
+    }
+    if path.is_dir() {
+        bail!("{}: is a folder, not a file name", path.display());
+    }
+    Ok(())
+}
+
+fn render(a: RenderArgs) -> Result<()> {
+    let start = Instant::now();
+    if let Some(t) = a.threads {
+        if t == 0 {
+            bail!("--threads must be at least 1");
+        }
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build_global()
+            .context("setting up the thread pool")?;
+    }
+    let settings = settings_of(&a);
+    settings.validate().map_err(|e| anyhow::anyhow!(e))?;
+    let progress = Progress::new(a.progress);
+    let mut times = PhaseTimes::default();
+
+    let phase = progress.phase("load", 0);
+    let scene = load_with(
+        &a.scene,
+        &LoadOptions {
+            allow_external_uris: a.allow_external_uris,
+        },
+    )?;
+    times.load = phase.finish();
+    for w in scene.report.approximated.iter().chain(&scene.report.ignored) {
+        tracing::warn!("{}: {w}", a.scene.display());
+    }
+    let keys = if a.cameras.is_empty() {
+        vec![]
+    } else {
+        a.cameras.clone()
+    };
+    let mut cameras = pipeline::select_cameras(&scene, &keys)?;
+    if a.cameras.is_empty() {
+        cameras.truncate(1);
+    }
+    let several = cameras.len() > 1;
+    let outputs: Vec<(PathBuf, Option<PathBuf>)> = cameras
+        .iter()
+        .map(|c| {
+            (
+                output_for(&a.output, &c.name, several),
+                a.png.as_ref().map(|p| output_for(p, &c.name, several)),
+            )
+        })
+        .collect();
+    for (o, p) in &outputs {
+        check_writable(o)?;
+        if let Some(p) = p {
+            check_writable(p)?;
+        }
+    }
+    if let Some(s) = &a.stats {
+        check_writable(s)?;
+    }
+
+    let prepared = pipeline::prepare(&scene, &settings, &progress, &mut times)?;
+    let mut camera_stats = Vec::new();
+    for (camera, (out, png)) in cameras.iter().zip(&outputs) {
+        let t = Instant::now();
+        let film = pipeline::render_camera(&scene, &prepared, camera, &settings, &progress);
+        let render_s = t.elapsed().as_secs_f64();
+        times.render += render_s;
+        let t = Instant::now();
+        let aovs = if a.aovs {
+            AovSelection::all()
+        } else {
+            AovSelection::default()
+        };
+        output::write_exr(out, &film, aovs)?;
+        if let Some(p) = png {
+            output::write_png(p, &film, a.exposure)?;
+        }
+        times.write += t.elapsed().as_secs_f64();
+        let nonfinite = film.nonfinite();
+        if nonfinite > 0 {
+            tracing::warn!("{}: {nonfinite} pixels are not finite", out.display());
+        }
+        camera_stats.push(serde_json::json!({
+            "camera": camera.name, "index": camera.index, "output": out, "png": png,
+            "width": film.width, "height": film.height, "render_seconds": render_s,
+            "mean_rgb": film.mean().to_array(), "nonfinite_pixels": nonfinite,
+        }));
+        if a.progress == ProgressMode::Json {
+            emit_json(&serde_json::json!({"event": "output", "camera": camera.name, "path": out}));
+        }
+    }
+    times.total = start.elapsed().as_secs_f64();
+    if a.progress != ProgressMode::Quiet {
+        eprintln!(
+            "{}: load {:.2} s · bvh {:.2} s · photons {:.2} s · build {:.2} s · render {:.2} s · write {:.2} s · total {:.2} s",
+            a.scene.display(),
+            times.load,
+            times.bvh,
+            times.photons,
+            times.build,
+            times.render,
+            times.write,
+            times.total
+        );
+    }
+    if let Some(path) = &a.stats {
+        let stats = serde_json::json!({
+            "scene": a.scene,
+            "version": env!("CARGO_PKG_VERSION"),
+            "settings": settings,
+            "threads": rayon::current_num_threads(),
+            "seconds": times,
+            "photons": prepared.photon_stats,
+            "memory": {
+                "peak_bytes": pipeline::peak_memory_bytes(),
+                "photon_map_bytes": prepared.map.memory_bytes(),
+                "bvh_bytes": prepared.accel.memory_bytes(),
+            },
+            "cameras": camera_stats,
+        });
+        output::write_atomic(path, serde_json::to_string_pretty(&stats)?.as_bytes())?;
+    }
+    Ok(())
+}
+
+fn info(path: &Path, json: bool) -> Result<()> {
+    let scene = photongrid::load(path)?;
+    let r = &scene.report;
+    if json {
+        let v = serde_json::json!({
+            "scene": path,
+            "triangles": scene.triangles.len(),
+            "surface_area_m2": scene.surface_area(),
+            "bounds": scene.bounds,
+            "has_specular": scene.has_specular(),
+            "report": r,
+        });
+        println!("{}", serde_json::to_string_pretty(&v)?);
+        return Ok(());
+    }
+    println!("{}", path.display());
+    println!(
+        "  triangles: {} ({} degenerate skipped), surface {:.3} m²",
+        scene.triangles.len(),
+        r.degenerate_triangles,
+        scene.surface_area()
+    );
+    println!(
+        "  bounds: {:.3?} – {:.3?}",
+        scene.bounds.min.to_array(),
+        scene.bounds.max.to_array()
+    );
+    let section = |title: &str, items: &[String]| {
+        println!("  {title}: {}", if items.is_empty() { "none" } else { "" });
+        for i in items {
+            println!("    - {i}");
+        }
+    };
+    section("materials", &r.materials);
+    section("lights", &r.lights);
+    section("cameras", &r.cameras);
+    section("approximated", &r.approximated);
+    section("ignored", &r.ignored);
+    println!(
+        "  caustics possible (glass or mirror present): {}",
+        if scene.has_specular() { "yes" } else { "no" }
+    );
+    Ok(())
+}
+
+fn compare(image: &Path, reference: &Path, mask: Option<&Path>, block: usize, json: bool) -> Result<()> {
+    let img = output::read_exr_rgb(image)?;
+    let r = output::read_exr_rgb(reference)?;
+    let m = match mask {
+        Some(m) => Some(photongrid::metrics::mask_from_rgb(&output::read_exr_rgb(m)?)),
+        None => None,
+    };
+    let s = photongrid::metrics::score(&img, &r, m.as_deref(), block)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", image.display()))?;
+    if json {
+        println!("{}", serde_json::to_string(&s)?);
+    } else {
+        let f = |v: Option<f64>| v.map(|v| format!("{v:.4}")).unwrap_or_else(|| "n/a".into());
+        println!("mean_lum_ratio        {}", f(s.mean_lum_ratio));
+        println!(
+            "rgb_mean_ratio        {:.4} {:.4} {:.4}",
+            s.rgb_mean_ratio[0], s.rgb_mean_ratio[1], s.rgb_mean_ratio[2]
+        );
+        println!("rel_rmse              {}", f(s.rel_rmse));
+        println!("block_rel_rmse        {}  (block {})", f(s.block_rel_rmse), s.block);
+        println!("block_frac_off_10pct  {}", f(s.block_frac_off_10pct));
+        println!("nonfinite_pixels      {}", s.nonfinite_pixels);
+        println!("pixels_scored         {}", s.pixels_scored);
+    }
+    Ok(())
+}

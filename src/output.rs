@@ -1,0 +1,247 @@
+//! Writing images: one single-part EXR (float32 `R,G,B` plus optional AOV layers) and an
+//! optional PNG preview, both written atomically (temporary file, then rename).
+
+use crate::film::Film;
+use crate::metrics::Image;
+use exr::prelude::{
+    read_all_flat_layers_from_file, AnyChannel, AnyChannels, Encoding, FlatSamples, Layer, LayerAttributes,
+    WritableImage,
+};
+use std::path::{Path, PathBuf};
+
+/// Output failures, naming the file.
+#[derive(Debug, thiserror::Error)]
+pub enum OutputError {
+    /// The file could not be written.
+    #[error("{path}: cannot write: {source}; check that the folder exists and is writable")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// EXR encoding or decoding failed.
+    #[error("{path}: EXR error: {message}")]
+    Exr {
+        /// The file.
+        path: PathBuf,
+        /// What the EXR library said.
+        message: String,
+    },
+    /// PNG encoding failed.
+    #[error("{path}: PNG error: {message}")]
+    Png {
+        /// The file.
+        path: PathBuf,
+        /// What the PNG encoder said.
+        message: String,
+    },
+}
+
+/// Which AOV layers to add to the EXR.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct AovSelection {
+    /// `albedo.R/G/B`.
+    pub albedo: bool,
+    /// `N.X/Y/Z`.
+    pub normal: bool,
+    /// `depth.Z`.
+    pub depth: bool,
+    /// `photons.density` and `photons.radius`.
+    pub photons: bool,
+}
+
+impl AovSelection {
+    /// Every layer.
+    pub fn all() -> Self {
+        AovSelection {
+            albedo: true,
+            normal: true,
+            depth: true,
+            photons: true,
+        }
+    }
+}
+
+/// Write `bytes` to `path` atomically: a reader sees the old file or the whole new one.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), OutputError> {
+    let io = |source| OutputError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .ok_or_else(|| io(std::io::Error::new(std::io::ErrorKind::InvalidInput, "not a file name")))?;
+    let tmp = dir.join(format!(".{}.{}.tmp", name.to_string_lossy(), std::process::id()));
+    let result = (|| {
+        use std::io::Write;
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result.map_err(io)
+}
+
+/// Encode a film as a single-part EXR with float32 channels.
+pub fn encode_exr(film: &Film, aovs: AovSelection) -> std::result::Result<Vec<u8>, String> {
+    let size = (film.width as usize, film.height as usize);
+    let ch = |name: &str, f: &dyn Fn(usize) -> f32| {
+        AnyChannel::new(name, FlatSamples::F32((0..film.color.len()).map(f).collect()))
+    };
+    let mut channels = vec![
+        ch("R", &|i| film.color[i].x),
+        ch("G", &|i| film.color[i].y),
+        ch("B", &|i| film.color[i].z),
+    ];
+    if aovs.albedo {
+        channels.push(ch("albedo.R", &|i| film.aov[i].albedo.x));
+        channels.push(ch("albedo.G", &|i| film.aov[i].albedo.y));
+        channels.push(ch("albedo.B", &|i| film.aov[i].albedo.z));
+    }
+    if aovs.normal {
+        channels.push(ch("N.X", &|i| film.aov[i].normal.x));
+        channels.push(ch("N.Y", &|i| film.aov[i].normal.y));
+        channels.push(ch("N.Z", &|i| film.aov[i].normal.z));
+    }
+    if aovs.depth {
+        channels.push(ch("depth.Z", &|i| film.aov[i].depth));
+    }
+    if aovs.photons {
+        channels.push(ch("photons.density", &|i| film.aov[i].density));
+        channels.push(ch("photons.radius", &|i| film.aov[i].radius));
+    }
+    let layer = Layer::new(
+        size,
+        LayerAttributes::default(),
+        Encoding::FAST_LOSSLESS,
+        AnyChannels::sort(channels.into()),
+    );
+    let image = exr::image::Image::from_layer(layer);
+    let mut buf = std::io::Cursor::new(Vec::new());
+    image.write().to_buffered(&mut buf).map_err(|e| e.to_string())?;
+    Ok(buf.into_inner())
+}
+
+/// Write the film as EXR, atomically.
+pub fn write_exr(path: &Path, film: &Film, aovs: AovSelection) -> Result<(), OutputError> {
+    let bytes = encode_exr(film, aovs).map_err(|message| OutputError::Exr {
+        path: path.to_path_buf(),
+        message,
+    })?;
+    write_atomic(path, &bytes)
+}
+
+/// Linear → sRGB 8-bit with exposure and clipping (preview only).
+pub fn linear_to_srgb8(v: f32) -> u8 {
+    let v = v.clamp(0.0, 1.0);
+    let s = if v <= 0.003_130_8 {
+        12.92 * v
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    };
+    (s * 255.0 + 0.5) as u8
+}
+
+/// Write an sRGB PNG preview (clipped at 1 after `exposure` stops), atomically.
+pub fn write_png(path: &Path, film: &Film, exposure: f32) -> Result<(), OutputError> {
+    let scale = 2f32.powf(exposure);
+    let mut rgb = Vec::with_capacity(film.color.len() * 3);
+    for c in &film.color {
+        for v in c.to_array() {
+            rgb.push(linear_to_srgb8(if v.is_finite() { v * scale } else { 0.0 }));
+        }
+    }
+    let mut bytes = Vec::new();
+    let enc = image::codecs::png::PngEncoder::new(&mut bytes);
+    image::ImageEncoder::write_image(enc, &rgb, film.width, film.height, image::ExtendedColorType::Rgb8).map_err(
+        |e| OutputError::Png {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        },
+    )?;
+    write_atomic(path, &bytes)
+}
+
+/// Read the colour of an EXR's first part: `R,G,B` (or `<layer>.R`...), or `Y` as grey.
+pub fn read_exr_rgb(path: &Path) -> Result<Image, OutputError> {
+    let err = |message: String| OutputError::Exr {
+        path: path.to_path_buf(),
+        message,
+    };
+    let image = read_all_flat_layers_from_file(path).map_err(|e| err(e.to_string()))?;
+    let layer = image.layer_data.first().ok_or_else(|| err("no layer".into()))?;
+    let (w, h) = (layer.size.width(), layer.size.height());
+    let names: Vec<String> = layer.channel_data.list.iter().map(|c| c.name.to_string()).collect();
+    let find = |c: &str| {
+        names
+            .iter()
+            .position(|n| n == c)
+            .or_else(|| names.iter().position(|n| n.ends_with(&format!(".{c}"))))
+    };
+    let values = |i: usize| -> Vec<f32> {
+        match &layer.channel_data.list[i].sample_data {
+            FlatSamples::F16(v) => v.iter().map(|x| x.to_f32()).collect(),
+            FlatSamples::F32(v) => v.clone(),
+            FlatSamples::U32(v) => v.iter().map(|&x| x as f32).collect(),
+        }
+    };
+    let (r, g, b) = match (find("R"), find("G"), find("B"), find("Y")) {
+        (Some(r), Some(g), Some(b), _) => (values(r), values(g), values(b)),
+        (_, _, _, Some(y)) => {
+            let y = values(y);
+            (y.clone(), y.clone(), y)
+        }
+        _ => return Err(err(format!("no R,G,B or Y channels (has {})", names.join(", ")))),
+    };
+    let mut img = Image::new(w, h);
+    for i in 0..w * h {
+        img.data[i] = [r[i], g[i], b[i]];
+    }
+    Ok(img)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Rgb;
+
+    #[test]
+    fn exr_round_trip_with_aovs() {
+        let mut film = Film::new(5, 3);
+        for (i, c) in film.color.iter_mut().enumerate() {
+            *c = Rgb::new(i as f32, 0.5, 1e-3);
+        }
+        let dir = std::env::temp_dir().join(format!("pg-exr-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("a.exr");
+        write_exr(&p, &film, AovSelection::all()).unwrap();
+        let back = read_exr_rgb(&p).unwrap();
+        assert_eq!((back.width, back.height), (5, 3));
+        assert_eq!(back.data[7], [7.0, 0.5, 1e-3]);
+        let names: Vec<String> = read_all_flat_layers_from_file(&p).unwrap().layer_data[0]
+            .channel_data
+            .list
+            .iter()
+            .map(|c| c.name.to_string())
+            .collect();
+        assert!(names.contains(&"albedo.R".to_string()) && names.contains(&"depth.Z".to_string()));
+        // No temporary file left behind.
+        assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn unwritable_path_is_an_error() {
+        let film = Film::new(2, 2);
+        let e = write_exr(Path::new("/nonexistent-dir/x.exr"), &film, AovSelection::default()).unwrap_err();
+        assert!(e.to_string().contains("/nonexistent-dir/x.exr"));
+    }
+}

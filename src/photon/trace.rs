@@ -1,0 +1,195 @@
+//! The photon pass: shoot photons from the lights in proportion to their power, follow glass
+//! and mirrors, store a photon at every diffuse hit, continue by Russian roulette.
+
+use super::store::{Photon, PhotonKind};
+use crate::accel::Accel;
+use crate::bsdf;
+use crate::sampling::{self, stream, Rng};
+use crate::scene::{Scene, Surface};
+use crate::surface::SurfacePoint;
+use crate::Rgb;
+use glam::Vec3;
+use rayon::prelude::*;
+
+/// Settings of the photon pass.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct TraceSettings {
+    /// Photons emitted (paths started).
+    pub photons: usize,
+    /// Bounces after which a path stops.
+    pub max_depth: u32,
+    /// Keep photons of direct light (the single-map method needs them; shadow rays do not).
+    pub store_direct: bool,
+    /// Random seed.
+    pub seed: u64,
+}
+
+/// What the photon pass produced.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct PhotonStats {
+    /// Paths started.
+    pub emitted: usize,
+    /// Photons stored, all kinds.
+    pub stored: usize,
+    /// Stored direct photons.
+    pub direct: usize,
+    /// Stored caustic photons.
+    pub caustic: usize,
+    /// Stored indirect photons.
+    pub indirect: usize,
+    /// Bytes of photon storage.
+    pub bytes: usize,
+}
+
+/// Paths per parallel work item: large enough to amortise scheduling, small for balance.
+const CHUNK: usize = 8192;
+
+/// Trace `settings.photons` photon paths. Deterministic for a seed, whatever the thread count.
+pub fn trace_photons(
+    scene: &Scene,
+    accel: &Accel,
+    settings: &TraceSettings,
+    progress: &(dyn Fn(usize) + Sync),
+) -> (Vec<Photon>, PhotonStats) {
+    let weights: Vec<f32> = scene
+        .lights
+        .iter()
+        .map(|l| crate::scene::light::power_weight(l.power()))
+        .collect();
+    let mut acc = 0.0;
+    let cdf: Vec<f32> = weights
+        .iter()
+        .map(|w| {
+            acc += w;
+            acc
+        })
+        .collect();
+    let total = acc;
+    let n = settings.photons;
+    let chunks: Vec<Vec<Photon>> = (0..n.div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|c| {
+            let mut out = Vec::with_capacity(CHUNK * 2);
+            let end = ((c + 1) * CHUNK).min(n);
+            for i in c * CHUNK..end {
+                let mut rng = Rng::keyed(settings.seed, stream::PHOTONS, i as u64);
+                let l = sampling::sample_cdf(&cdf, rng.uniform());
+                let p_light = weights[l] / total;
+                let e = scene.lights[l].emit(&mut rng);
+                let power = e.flux / (p_light * n as f32);
+                trace_path(scene, accel, settings, e.origin, e.direction, power, &mut rng, &mut out);
+            }
+            progress(end - c * CHUNK);
+            out
+        })
+        .collect();
+    let mut photons = Vec::with_capacity(chunks.iter().map(|c| c.len()).sum());
+    for c in chunks {
+        photons.extend_from_slice(&c);
+    }
+    let mut stats = PhotonStats {
+        emitted: n,
+        stored: photons.len(),
+        bytes: photons.len() * std::mem::size_of::<Photon>(),
+        ..Default::default()
+    };
+    for p in &photons {
+        match p.kind() {
+            PhotonKind::Direct => stats.direct += 1,
+            PhotonKind::Caustic => stats.caustic += 1,
+            PhotonKind::Indirect => stats.indirect += 1,
+        }
+    }
+    (photons, stats)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn trace_path(
+    scene: &Scene,
+    accel: &Accel,
+    settings: &TraceSettings,
+    mut origin: Vec3,
+    mut dir: Vec3,
+    mut power: Rgb,
+    rng: &mut Rng,
+    out: &mut Vec<Photon>,
+) {
+    let mut kind = PhotonKind::Direct;
+    for _depth in 0..settings.max_depth {
+        let Some(hit) = accel.intersect(origin, dir, f32::INFINITY) else {
+            return;
+        };
+        let sp = SurfacePoint::new(scene, origin, dir, hit);
+        let material = &scene.materials[sp.material as usize];
+        match &material.surface {
+            Surface::Lambert { .. } => {
+                let albedo = sp.albedo(scene);
+                if albedo.max_element() <= 0.0 {
+                    return;
+                }
+                if kind != PhotonKind::Direct || settings.store_direct {
+                    out.push(Photon::new(sp.position, power, sp.facing_normal, -dir, kind));
+                }
+                // Russian roulette on the largest channel keeps the photon power nearly constant.
+                let q = albedo.max_element().min(1.0);
+                if rng.uniform() >= q {
+                    return;
+                }
+                power *= albedo / q;
+                dir = sampling::cosine_hemisphere(rng.uniform2(), sp.facing_shading_normal);
+                if dir.dot(sp.facing_normal) <= 0.0 {
+                    return; // shading normal sent it below the surface
+                }
+                origin = sp.offset(dir);
+                kind = PhotonKind::Indirect;
+            }
+            Surface::Mirror { f0 } => {
+                let f = bsdf::fresnel_schlick(*f0, -dir.dot(sp.facing_shading_normal));
+                let q = f.max_element().min(1.0);
+                if rng.uniform() >= q {
+                    return;
+                }
+                power *= f / q;
+                dir = bsdf::reflect(dir, sp.facing_shading_normal);
+                origin = sp.offset(dir);
+                if kind == PhotonKind::Direct {
+                    kind = PhotonKind::Caustic;
+                }
+            }
+            Surface::Dielectric { ior, tint, absorption } => {
+                if let (Some(sigma), true) = (absorption, sp.backface) {
+                    power *= (-*sigma * hit.t).exp();
+                }
+                let (r, t) = bsdf::dielectric_branches(dir, sp.geometric_normal, *ior, *tint);
+                let s = match t {
+                    Some(t) if rng.uniform() >= r.weight.x => SpecularSampleW {
+                        dir: t.direction,
+                        weight: t.weight / (1.0 - r.weight.x),
+                    },
+                    Some(_) => SpecularSampleW {
+                        dir: r.direction,
+                        weight: Rgb::ONE,
+                    },
+                    None => SpecularSampleW {
+                        dir: r.direction,
+                        weight: r.weight,
+                    },
+                };
+                power *= s.weight;
+                dir = s.dir;
+                origin = sp.offset(dir);
+                if kind == PhotonKind::Direct {
+                    kind = PhotonKind::Caustic;
+                }
+            }
+        }
+        if power.max_element() <= 0.0 || !power.is_finite() {
+            return;
+        }
+    }
+}
+
+struct SpecularSampleW {
+    dir: Vec3,
+    weight: Rgb,
+}

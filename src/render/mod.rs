@@ -1,0 +1,213 @@
+//! The camera pass: jittered camera rays, specular chains followed, and at diffuse points
+//! direct light by shadow rays plus indirect light and caustics from the photon map.
+
+use crate::accel::Accel;
+use crate::bsdf;
+use crate::estimate::{density_radiance, PhotonMap};
+use crate::film::{Aov, Film};
+use crate::photon::neighbours::KnnBuffer;
+use crate::sampling::{stream, Rng};
+use crate::scene::{Camera, Scene, Surface};
+use crate::surface::SurfacePoint;
+use crate::Rgb;
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+
+/// Where direct illumination comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum DirectLighting {
+    /// Shadow rays to every light; the photon map gives indirect light and caustics only.
+    ShadowRays,
+    /// The paper's single map: all light, direct included, from photons.
+    Photons,
+}
+
+/// Settings of the camera pass.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct RenderSettings {
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Camera rays per pixel.
+    pub spp: u32,
+    /// Photons per estimate (k).
+    pub neighbours: usize,
+    /// Direct light by shadow rays or photons.
+    pub direct: DirectLighting,
+    /// Shadow rays per emissive-light evaluation (delta lights always take one).
+    pub light_samples: u32,
+    /// Longest chain of mirror/glass bounces followed from the camera.
+    pub max_specular_depth: u32,
+    /// Up to this depth both glass branches are followed; deeper, one is chosen by Fresnel.
+    pub split_depth: u32,
+    /// Random seed.
+    pub seed: u64,
+}
+
+/// Per-thread state of the camera pass.
+struct Tracer<'a> {
+    scene: &'a Scene,
+    accel: &'a Accel,
+    map: &'a PhotonMap,
+    settings: &'a RenderSettings,
+    knn: KnnBuffer,
+}
+
+/// Render `camera` into a film. `progress(rows)` is called as rows finish.
+pub fn render(
+    scene: &Scene,
+    accel: &Accel,
+    map: &PhotonMap,
+    camera: &Camera,
+    settings: &RenderSettings,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Film {
+    let (w, h) = (settings.width, settings.height);
+    let mut film = Film::new(w, h);
+    let spp = settings.spp.max(1);
+    film.color
+        .par_chunks_mut(w as usize)
+        .zip(film.aov.par_chunks_mut(w as usize))
+        .enumerate()
+        .for_each_init(
+            || Tracer {
+                scene,
+                accel,
+                map,
+                settings,
+                knn: KnnBuffer::default(),
+            },
+            |tracer, (y, (row, aovs))| {
+                for x in 0..w as usize {
+                    let pixel = (y * w as usize + x) as u64;
+                    let mut sum = Rgb::ZERO;
+                    for s in 0..spp {
+                        let mut rng = Rng::keyed(settings.seed, stream::CAMERA, pixel * spp as u64 + s as u64);
+                        let film_pos = Vec2::new(x as f32, y as f32) + rng.uniform2();
+                        let (o, d) = camera.generate_ray(film_pos, w, h);
+                        let mut aov = (s == 0).then_some(&mut aovs[x]);
+                        sum += tracer.radiance(o, d, 0, &mut rng, &mut aov);
+                    }
+                    row[x] = sum / spp as f32;
+                }
+                progress(1);
+            },
+        );
+    film
+}
+
+impl Tracer<'_> {
+    fn radiance(&mut self, o: Vec3, d: Vec3, depth: u32, rng: &mut Rng, aov: &mut Option<&mut Aov>) -> Rgb {
+        let Some(hit) = self.accel.intersect(o, d, f32::INFINITY) else {
+            return Rgb::ZERO; // black world, as the reference scenes
+        };
+        let sp = SurfacePoint::new(self.scene, o, d, hit);
+        let material = &self.scene.materials[sp.material as usize];
+        if depth == 0 {
+            if let Some(a) = aov.as_deref_mut() {
+                a.normal = sp.facing_shading_normal;
+                a.depth = hit.t;
+            }
+        }
+        let mut l = Rgb::ZERO;
+        if material.is_emissive() && (material.double_sided || !sp.backface) {
+            l += material.emission;
+        }
+        match &material.surface {
+            Surface::Lambert { .. } => l += self.diffuse(&sp, rng, aov),
+            Surface::Mirror { f0 } => {
+                if depth < self.settings.max_specular_depth {
+                    let f = bsdf::fresnel_schlick(*f0, -d.dot(sp.facing_shading_normal));
+                    let r = bsdf::reflect(d, sp.facing_shading_normal);
+                    l += f * self.radiance(sp.offset(r), r, depth + 1, rng, aov);
+                }
+            }
+            Surface::Dielectric { ior, tint, absorption } => {
+                let mut weight = Rgb::ONE;
+                if let (Some(sigma), true) = (absorption, sp.backface) {
+                    weight = (-*sigma * hit.t).exp();
+                }
+                if depth < self.settings.max_specular_depth {
+                    let (r, t) = bsdf::dielectric_branches(d, sp.geometric_normal, *ior, *tint);
+                    let branch =
+                        |tr: &mut Self, s: bsdf::SpecularSample, w: Rgb, rng: &mut Rng, aov: &mut Option<&mut Aov>| {
+                            w * tr.radiance(sp.offset(s.direction), s.direction, depth + 1, rng, aov)
+                        };
+                    match t {
+                        Some(t) if depth < self.settings.split_depth => {
+                            l += weight * branch(self, t, t.weight, rng, aov);
+                            l += weight * branch(self, r, r.weight, rng, &mut None);
+                        }
+                        Some(t) => {
+                            let pr = r.weight.x;
+                            if rng.uniform() < pr {
+                                l += weight * branch(self, r, Rgb::ONE, rng, aov);
+                            } else {
+                                l += weight * branch(self, t, t.weight / (1.0 - pr), rng, aov);
+                            }
+                        }
+                        None => l += weight * branch(self, r, r.weight, rng, aov),
+                    }
+                }
+            }
+        }
+        l
+    }
+
+    /// Radiance leaving a Lambert surface towards the camera.
+    fn diffuse(&mut self, sp: &SurfacePoint, rng: &mut Rng, aov: &mut Option<&mut Aov>) -> Rgb {
+        let albedo = sp.albedo(self.scene);
+        if albedo.max_element() <= 0.0 {
+            return Rgb::ZERO;
+        }
+        let mut l = Rgb::ZERO;
+        if self.settings.direct == DirectLighting::ShadowRays {
+            l += bsdf::lambert(albedo) * self.direct_irradiance(sp, rng);
+        }
+        let g = self
+            .map
+            .knn(sp.position, sp.facing_normal, self.settings.neighbours, &mut self.knn);
+        l += density_radiance(albedo, g.flux, g.r2);
+        if let Some(a) = aov.take() {
+            a.albedo = albedo;
+            a.density = g.count as f32 / (std::f32::consts::PI * g.r2.max(1e-30));
+            a.radius = g.r2.sqrt();
+        }
+        l
+    }
+
+    /// Irradiance from all lights by shadow rays.
+    fn direct_irradiance(&self, sp: &SurfacePoint, rng: &mut Rng) -> Rgb {
+        let mut e = Rgb::ZERO;
+        for light in &self.scene.lights {
+            let samples = if light.is_delta() {
+                1
+            } else {
+                self.settings.light_samples.max(1)
+            };
+            let mut sum = Rgb::ZERO;
+            for _ in 0..samples {
+                let Some(inc) = light.incident(sp.position, rng) else {
+                    continue;
+                };
+                let cos = inc.wi.dot(sp.facing_shading_normal);
+                if cos <= 0.0 || inc.wi.dot(sp.facing_normal) <= 0.0 {
+                    continue;
+                }
+                let origin = sp.offset(inc.wi);
+                let tmax = if inc.distance.is_finite() {
+                    (inc.distance * (1.0 - 1e-4) - 1e-4).max(0.0)
+                } else {
+                    f32::INFINITY
+                };
+                if !self.accel.occluded(origin, inc.wi, tmax) {
+                    sum += inc.irradiance * cos;
+                }
+            }
+            e += sum / samples as f32;
+        }
+        e
+    }
+}

@@ -1,0 +1,183 @@
+//! Random numbers and the sampling routines shared by lights, materials and cameras.
+//!
+//! Every random stream is keyed by (seed, purpose, index) so that an image depends on the seed
+//! only, never on the number of threads or the order in which rayon runs the work.
+
+use glam::{Vec2, Vec3};
+use std::f32::consts::PI;
+
+/// A small, fast generator (PCG-XSH-RR 64/32) with keyed construction.
+#[derive(Clone, Debug)]
+pub struct Rng {
+    state: u64,
+    inc: u64,
+}
+
+/// SplitMix64 finaliser: a good hash for keying streams.
+pub fn mix64(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+impl Rng {
+    /// A stream for `(seed, stream, index)`: e.g. (user seed, PHOTONS, photon index).
+    pub fn keyed(seed: u64, stream: u64, index: u64) -> Self {
+        let a = mix64(seed ^ mix64(stream.wrapping_mul(0x2545_F491_4F6C_DD1D)));
+        let b = mix64(a ^ index);
+        let mut r = Rng {
+            state: 0,
+            inc: (mix64(b ^ 0xDA3E_39CB_94B9_5BDB) << 1) | 1,
+        };
+        r.state = b.wrapping_add(r.inc);
+        r.next_u32();
+        r
+    }
+
+    /// Next 32 random bits.
+    #[inline]
+    pub fn next_u32(&mut self) -> u32 {
+        let old = self.state;
+        self.state = old.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(self.inc);
+        let xorshifted = (((old >> 18) ^ old) >> 27) as u32;
+        let rot = (old >> 59) as u32;
+        xorshifted.rotate_right(rot)
+    }
+
+    /// Uniform in [0, 1).
+    #[inline]
+    pub fn uniform(&mut self) -> f32 {
+        (self.next_u32() >> 8) as f32 * (1.0 / 16_777_216.0)
+    }
+
+    /// Two uniforms in [0, 1).
+    #[inline]
+    pub fn uniform2(&mut self) -> Vec2 {
+        Vec2::new(self.uniform(), self.uniform())
+    }
+}
+
+/// Stream keys, one per purpose.
+pub mod stream {
+    /// Photon paths.
+    pub const PHOTONS: u64 = 1;
+    /// Camera samples.
+    pub const CAMERA: u64 = 2;
+}
+
+/// An orthonormal basis (t, b, n) around a unit normal (Duff et al. 2017).
+pub fn basis(n: Vec3) -> (Vec3, Vec3) {
+    let sign = 1.0f32.copysign(n.z);
+    let a = -1.0 / (sign + n.z);
+    let b = n.x * n.y * a;
+    (
+        Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x),
+        Vec3::new(b, sign + n.y * n.y * a, -n.y),
+    )
+}
+
+/// Express a local direction (z = normal) in world space.
+pub fn to_world(local: Vec3, n: Vec3) -> Vec3 {
+    let (t, b) = basis(n);
+    t * local.x + b * local.y + n * local.z
+}
+
+/// Cosine-weighted hemisphere direction around `n` (pdf cosθ/π).
+pub fn cosine_hemisphere(u: Vec2, n: Vec3) -> Vec3 {
+    let d = concentric_disk(u);
+    let z = (1.0 - d.length_squared()).max(0.0).sqrt();
+    to_world(Vec3::new(d.x, d.y, z), n)
+}
+
+/// Uniform point on the unit disk (Shirley–Chiu concentric map).
+pub fn concentric_disk(u: Vec2) -> Vec2 {
+    let o = 2.0 * u - Vec2::ONE;
+    if o.x == 0.0 && o.y == 0.0 {
+        return Vec2::ZERO;
+    }
+    let (r, theta) = if o.x.abs() > o.y.abs() {
+        (o.x, PI / 4.0 * (o.y / o.x))
+    } else {
+        (o.y, PI / 2.0 - PI / 4.0 * (o.x / o.y))
+    };
+    r * Vec2::new(theta.cos(), theta.sin())
+}
+
+/// Uniform direction on the unit sphere.
+pub fn uniform_sphere(u: Vec2) -> Vec3 {
+    let z = 1.0 - 2.0 * u.x;
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let phi = 2.0 * PI * u.y;
+    Vec3::new(r * phi.cos(), r * phi.sin(), z)
+}
+
+/// Direction with cosθ uniform in [cos_max, 1] around `axis` (uniform in solid angle).
+pub fn uniform_cone(u: Vec2, cos_max: f32, axis: Vec3) -> Vec3 {
+    let cos_t = 1.0 - u.x * (1.0 - cos_max);
+    let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
+    let phi = 2.0 * PI * u.y;
+    to_world(Vec3::new(sin_t * phi.cos(), sin_t * phi.sin(), cos_t), axis)
+}
+
+/// Uniform barycentrics (b1, b2) on a triangle (square-root parameterisation).
+pub fn uniform_triangle(u: Vec2) -> (f32, f32) {
+    let s = u.x.sqrt();
+    (1.0 - s, u.y * s)
+}
+
+/// Index of the first CDF entry greater than `u·total` (the CDF is inclusive, increasing).
+pub fn sample_cdf(cdf: &[f32], u: f32) -> usize {
+    let total = *cdf.last().unwrap_or(&0.0);
+    let x = u * total;
+    cdf.partition_point(|&c| c <= x).min(cdf.len().saturating_sub(1))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rng_is_keyed_and_uniform() {
+        let mut a = Rng::keyed(1, 2, 3);
+        let mut b = Rng::keyed(1, 2, 3);
+        let mut c = Rng::keyed(1, 2, 4);
+        assert_eq!(a.next_u32(), b.next_u32());
+        assert_ne!(a.next_u32(), c.next_u32());
+        let n = 100_000;
+        let mean: f64 = (0..n).map(|_| a.uniform() as f64).sum::<f64>() / n as f64;
+        assert!((mean - 0.5).abs() < 0.005, "{mean}");
+    }
+
+    #[test]
+    fn basis_is_orthonormal() {
+        let mut r = Rng::keyed(0, 0, 0);
+        for _ in 0..1000 {
+            let n = uniform_sphere(r.uniform2());
+            let (t, b) = basis(n);
+            assert!(t.dot(b).abs() < 1e-5 && t.dot(n).abs() < 1e-5 && b.dot(n).abs() < 1e-5);
+            assert!((t.cross(b) - n).length() < 1e-4);
+        }
+    }
+
+    #[test]
+    fn cosine_hemisphere_mean_cos() {
+        // E[cosθ] under the cosθ/π pdf is 2/3.
+        let mut r = Rng::keyed(0, 0, 1);
+        let n = Vec3::new(0.3, 0.4, 0.866).normalize();
+        let k = 200_000;
+        let m: f64 = (0..k)
+            .map(|_| cosine_hemisphere(r.uniform2(), n).dot(n) as f64)
+            .sum::<f64>()
+            / k as f64;
+        assert!((m - 2.0 / 3.0).abs() < 0.003, "{m}");
+    }
+
+    #[test]
+    fn cdf_sampling() {
+        let cdf = [1.0, 1.0, 3.0];
+        assert_eq!(sample_cdf(&cdf, 0.0), 0);
+        assert_eq!(sample_cdf(&cdf, 0.4), 2);
+        assert_eq!(sample_cdf(&cdf, 0.999), 2);
+    }
+}

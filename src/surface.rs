@@ -1,0 +1,92 @@
+//! What a ray hit: position, normals oriented to the side the ray came from, texture
+//! coordinates, and the material's albedo there.
+
+use crate::accel::Hit;
+use crate::scene::{Scene, Surface};
+use crate::Rgb;
+use glam::{Vec2, Vec3};
+
+/// Local geometry at a ray hit.
+#[derive(Clone, Copy, Debug)]
+pub struct SurfacePoint {
+    /// World position (on the triangle, from barycentrics: more precise than o + t·d).
+    pub position: Vec3,
+    /// Unit geometric normal of the triangle's front face.
+    pub geometric_normal: Vec3,
+    /// Geometric normal flipped to face the incoming ray.
+    pub facing_normal: Vec3,
+    /// Interpolated shading normal, flipped to the same side as `facing_normal`.
+    pub facing_shading_normal: Vec3,
+    /// True if the ray hit the back face.
+    pub backface: bool,
+    /// Texture coordinates.
+    pub uv: Vec2,
+    /// Material index.
+    pub material: u32,
+    /// Triangle index.
+    pub triangle: u32,
+}
+
+impl SurfacePoint {
+    /// Build from a hit of the ray `origin + t·dir`.
+    pub fn new(scene: &Scene, origin: Vec3, dir: Vec3, hit: Hit) -> Self {
+        let tri = &scene.triangles[hit.triangle as usize];
+        let e1 = tri.p[1] - tri.p[0];
+        let e2 = tri.p[2] - tri.p[0];
+        let pvec = dir.cross(e2);
+        let det = e1.dot(pvec);
+        let (b1, b2) = if det.abs() > 0.0 {
+            let inv = 1.0 / det;
+            let tvec = origin - tri.p[0];
+            let qvec = tvec.cross(e1);
+            let u = (tvec.dot(pvec) * inv).clamp(0.0, 1.0);
+            let v = (dir.dot(qvec) * inv).clamp(0.0, 1.0 - u);
+            (u, v)
+        } else {
+            (1.0 / 3.0, 1.0 / 3.0)
+        };
+        let position = tri.p[0] + e1 * b1 + e2 * b2;
+        let ng = e1.cross(e2).normalize();
+        let backface = dir.dot(ng) > 0.0;
+        let facing = if backface { -ng } else { ng };
+        let mut ns = tri.lerp(tri.n, b1, b2).normalize_or_zero();
+        if ns == Vec3::ZERO {
+            ns = ng;
+        }
+        if ns.dot(facing) < 0.0 {
+            ns = -ns;
+        }
+        SurfacePoint {
+            position,
+            geometric_normal: ng,
+            facing_normal: facing,
+            facing_shading_normal: ns,
+            backface,
+            uv: tri.lerp(tri.uv, b1, b2),
+            material: tri.material,
+            triangle: hit.triangle,
+        }
+    }
+
+    /// Diffuse albedo (with texture) of a Lambert material; zero for others.
+    pub fn albedo(&self, scene: &Scene) -> Rgb {
+        match &scene.materials[self.material as usize].surface {
+            Surface::Lambert { albedo, texture } => match texture {
+                Some(t) => *albedo * scene.textures[*t as usize].sample(self.uv),
+                None => *albedo,
+            },
+            _ => Rgb::ZERO,
+        }
+    }
+
+    /// A start point for a ray leaving in `dir`, nudged off the surface to the side `dir` goes.
+    pub fn offset(&self, dir: Vec3) -> Vec3 {
+        let eps = 1e-4 * (1.0 + self.position.abs().max_element());
+        let n = if dir.dot(self.geometric_normal) >= 0.0 {
+            self.geometric_normal
+        } else {
+            -self.geometric_normal
+        };
+        self.position + n * eps
+    }
+}
