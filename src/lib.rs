@@ -12,6 +12,7 @@ pub mod accel;
 pub mod bsdf;
 pub mod estimate;
 pub mod film;
+pub mod grid;
 pub mod metrics;
 pub mod output;
 pub mod photon;

@@ -3,11 +3,13 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
+use photongrid::grid::GridQuantity;
 use photongrid::output::{self, AovSelection};
 use photongrid::pipeline::{self, PhaseTimes};
 use photongrid::progress::{emit_json, Progress, ProgressMode};
-use photongrid::render::DirectLighting;
+use photongrid::render::{DirectLighting, Method};
 use photongrid::scene::gltf::{load_with, LoadOptions};
+use photongrid::settings::{ThresholdChoice, WaveletChoice};
 use photongrid::Settings;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -100,6 +102,39 @@ struct RenderArgs {
     /// Largest photon gather radius, as a fraction of the scene diagonal.
     #[arg(long, default_value_t = Settings::default().max_radius_rel)]
     max_radius: f32,
+    /// Radiance estimate: plain k nearest neighbours, or the paper's grid-adaptive radius.
+    #[arg(long, value_enum, default_value_t = Settings::default().method)]
+    method: Method,
+    /// Cells along the longer side of each plane's count grid.
+    #[arg(long, default_value_t = Settings::default().grid_res)]
+    grid_res: usize,
+    /// Wavelet for the photon-count textures.
+    #[arg(long, value_enum, default_value_t = Settings::default().wavelet)]
+    wavelet: WaveletChoice,
+    /// Thresholding of wavelet details: the paper's fixed value, or set from the data.
+    #[arg(long, value_enum, default_value_t = Settings::default().threshold)]
+    threshold: ThresholdChoice,
+    /// The fixed threshold (photon counts) for --threshold fixed.
+    #[arg(long, default_value_t = Settings::default().threshold_value)]
+    threshold_value: f32,
+    /// Wavelet levels (at most).
+    #[arg(long, default_value_t = Settings::default().wavelet_levels)]
+    wavelet_levels: usize,
+    /// Share of the kNN radius error kept: r = r_a + alpha (r_k − r_a).
+    #[arg(long, default_value_t = Settings::default().alpha)]
+    alpha: f32,
+    /// Filtered photons per cell below which the kNN radius is used (shadows).
+    #[arg(long, default_value_t = Settings::default().shadow_count)]
+    shadow_count: f32,
+    /// Whether grid cells count photons or flux.
+    #[arg(long, value_enum, default_value_t = Settings::default().grid_quantity)]
+    grid_quantity: GridQuantity,
+    /// Final-gather rays per camera sample (0: show the photon map directly, as the paper).
+    #[arg(long, default_value_t = Settings::default().gather)]
+    gather: u32,
+    /// Write each plane's count texture before and after the wavelet step (EXR) into this folder.
+    #[arg(long, value_name = "DIR")]
+    dump_grids: Option<PathBuf>,
     /// Add AOV layers to the EXR: albedo, N, depth, photons (density and radius).
     #[arg(long)]
     aovs: bool,
@@ -177,6 +212,16 @@ fn settings_of(a: &RenderArgs) -> Settings {
         max_photon_depth: a.max_photon_depth,
         max_specular_depth: a.max_specular_depth,
         max_radius_rel: a.max_radius,
+        method: a.method,
+        grid_res: a.grid_res,
+        wavelet: a.wavelet,
+        threshold: a.threshold,
+        threshold_value: a.threshold_value,
+        wavelet_levels: a.wavelet_levels,
+        alpha: a.alpha,
+        shadow_count: a.shadow_count,
+        grid_quantity: a.grid_quantity,
+        gather: a.gather,
         ..Settings::default()
     }
 }
@@ -286,6 +331,13 @@ fn render(a: RenderArgs) -> Result<()> {
     }
 
     let prepared = pipeline::prepare(&scene, &settings, &progress, &mut times)?;
+    if let (Some(dir), Some(g)) = (&a.dump_grids, &prepared.grids) {
+        std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
+        for (i, (raw, filtered)) in g.raw.iter().zip(&g.filtered).enumerate() {
+            output::write_field_exr(&dir.join(format!("plane{i:03}_counts.exr")), raw)?;
+            output::write_field_exr(&dir.join(format!("plane{i:03}_filtered.exr")), filtered)?;
+        }
+    }
     let mut camera_stats = Vec::new();
     for (camera, (out, png)) in cameras.iter().zip(&outputs) {
         let t = Instant::now();

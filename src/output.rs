@@ -139,6 +139,26 @@ pub fn write_exr(path: &Path, film: &Film, aovs: AovSelection) -> Result<(), Out
     write_atomic(path, &bytes)
 }
 
+/// Write a 2D field (a plane's count texture) as a one-channel `Y` EXR, atomically.
+pub fn write_field_exr(path: &Path, field: &crate::grid::wavelet::Field2) -> Result<(), OutputError> {
+    let ch = AnyChannel::new("Y", FlatSamples::F32(field.data.clone()));
+    let layer = Layer::new(
+        (field.width, field.height),
+        LayerAttributes::default(),
+        Encoding::FAST_LOSSLESS,
+        AnyChannels::sort(vec![ch].into()),
+    );
+    let mut buf = std::io::Cursor::new(Vec::new());
+    exr::image::Image::from_layer(layer)
+        .write()
+        .to_buffered(&mut buf)
+        .map_err(|e| OutputError::Exr {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+    write_atomic(path, &buf.into_inner())
+}
+
 /// Linear → sRGB 8-bit with exposure and clipping (preview only).
 pub fn linear_to_srgb8(v: f32) -> u8 {
     let v = v.clamp(0.0, 1.0);

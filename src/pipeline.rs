@@ -2,11 +2,13 @@
 //! timed and reported; the result of the first three is shared by every camera rendered.
 
 use crate::accel::Accel;
-use crate::estimate::PhotonMap;
+use crate::estimate::{IrradianceCache, PhotonMap};
 use crate::film::Film;
+use crate::grid::PlaneGrids;
 use crate::photon::{trace_photons, PhotonStats, TraceSettings};
+use crate::photon::{Photon, PhotonKind};
 use crate::progress::Progress;
-use crate::render::{self, DirectLighting, RenderSettings};
+use crate::render::{self, DirectLighting, Method, RenderSettings};
 use crate::scene::{Camera, Scene};
 use crate::settings::Settings;
 use serde::Serialize;
@@ -46,6 +48,10 @@ pub struct PhaseTimes {
     pub bvh: f64,
     /// Tracing photons.
     pub photons: f64,
+    /// Plane detection, counting and wavelet filtering (adaptive method).
+    pub grids: f64,
+    /// Precomputing irradiance for final gathering.
+    pub irradiance: f64,
     /// Building the photon index.
     pub build: f64,
     /// Camera pass (all cameras).
@@ -64,6 +70,10 @@ pub struct Prepared {
     pub map: PhotonMap,
     /// Photon counts.
     pub photon_stats: PhotonStats,
+    /// The plane grids (adaptive method only).
+    pub grids: Option<PlaneGrids>,
+    /// Precomputed irradiance for final gathering.
+    pub irradiance: Option<IrradianceCache>,
 }
 
 /// Stored photons per emitted path is at least about one in a closed scene; 24 bytes each,
@@ -113,6 +123,7 @@ pub fn prepare(
     settings.validate().map_err(RenderError::Settings)?;
     check_photon_memory(settings.photons)?;
 
+    let max_radius = settings.max_radius_rel * scene.bounds.diagonal();
     let phase = progress.phase("bvh", 0);
     let accel = {
         let _s = tracing::info_span!("bvh", triangles = scene.triangles.len()).entered();
@@ -123,11 +134,12 @@ pub fn prepare(
     let trace = TraceSettings {
         photons: settings.photons,
         max_depth: settings.max_photon_depth,
-        store_direct: settings.direct == DirectLighting::Photons,
+        store_direct: settings.direct == DirectLighting::Photons || settings.gather > 0,
         seed: settings.seed,
+        record_triangles: settings.method == Method::Adaptive,
     };
     let phase = progress.phase("photons", settings.photons as u64);
-    let (photons, photon_stats) = {
+    let (photons, photon_triangles, photon_stats) = {
         let _s = tracing::info_span!("photons", n = settings.photons).entered();
         trace_photons(scene, &accel, &trace, &|n| phase.inc(n as u64))
     };
@@ -140,23 +152,66 @@ pub fn prepare(
         "photons stored"
     );
 
+    // Final gathering reads irradiance from all photons at the gather rays' hits; the camera
+    // then sees only what gathering cannot give: caustics (and direct light in single-map mode).
+    let irradiance = (settings.gather > 0).then(|| {
+        let phase = progress.phase("irradiance", 0);
+        let _s = tracing::info_span!("irradiance").entered();
+        let all = PhotonMap::build(
+            photons.clone(),
+            settings.gather_neighbours,
+            scene.surface_area(),
+            max_radius,
+        );
+        let cache = IrradianceCache::build(
+            &all,
+            settings.gather_neighbours,
+            settings.gather_stride,
+            scene.surface_area(),
+        );
+        times.irradiance = phase.finish();
+        cache
+    });
+    let direct_photons = settings.direct == DirectLighting::Photons;
+    let shown = |k: PhotonKind| match k {
+        PhotonKind::Caustic => true,
+        PhotonKind::Direct => direct_photons,
+        PhotonKind::Indirect => settings.gather == 0,
+    };
+    let (photons, photon_triangles): (Vec<Photon>, Vec<u32>) = if photon_triangles.is_empty() {
+        (photons.into_iter().filter(|p| shown(p.kind())).collect(), Vec::new())
+    } else {
+        photons
+            .into_iter()
+            .zip(photon_triangles)
+            .filter(|(p, _)| shown(p.kind()))
+            .unzip()
+    };
+
+    let grids = (settings.method == Method::Adaptive).then(|| {
+        let phase = progress.phase("grids", 0);
+        let _s = tracing::info_span!("grids").entered();
+        let set = PlaneGrids::detect(&scene.triangles, settings.grid_res);
+        let mut g = PlaneGrids::count(set, &photons, &photon_triangles, settings.grid_quantity, |_| true);
+        g.filter(settings.wavelet(), settings.threshold(), settings.wavelet_levels);
+        times.grids = phase.finish();
+        tracing::info!(planes = g.set.planes.len(), "plane grids");
+        g
+    });
+    drop(photon_triangles);
+
     let phase = progress.phase("build", 0);
     let map = {
         let _s = tracing::info_span!("build", photons = photons.len()).entered();
-        let max_radius = settings.max_radius_rel * scene.bounds.diagonal();
-        PhotonMap::build(
-            photons,
-            settings.neighbours,
-            scene.surface_area(),
-            max_radius,
-            trace.store_direct,
-        )
+        PhotonMap::build(photons, settings.neighbours, scene.surface_area(), max_radius)
     };
     times.build = phase.finish();
     Ok(Prepared {
         accel,
         map,
         photon_stats,
+        grids,
+        irradiance,
     })
 }
 
@@ -190,13 +245,24 @@ pub fn render_camera(
         max_specular_depth: settings.max_specular_depth,
         split_depth: settings.split_depth,
         seed: settings.seed,
+        method: settings.method,
+        alpha: settings.alpha,
+        shadow_count: settings.shadow_count,
+        gather: settings.gather,
     };
     let phase = progress.phase("render", height as u64);
     let film = {
         let _s = tracing::info_span!("render", camera = camera.name.as_str(), width, height).entered();
-        render::render(scene, &prepared.accel, &prepared.map, camera, &rs, &|n| {
-            phase.inc(n as u64)
-        })
+        render::render(
+            scene,
+            &prepared.accel,
+            &prepared.map,
+            prepared.grids.as_ref(),
+            prepared.irradiance.as_ref(),
+            camera,
+            &rs,
+            &|n| phase.inc(n as u64),
+        )
     };
     phase.finish();
     film

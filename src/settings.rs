@@ -1,7 +1,9 @@
 //! Render settings: one struct with defaults, shared by the CLI, batch jobs, the add-on and
 //! the benchmarks, so a new option is added once.
 
-use crate::render::DirectLighting;
+use crate::grid::wavelet::{Threshold, Wavelet};
+use crate::grid::GridQuantity;
+use crate::render::{DirectLighting, Method};
 use serde::{Deserialize, Serialize};
 
 /// Everything that controls a render (except which scene and camera).
@@ -32,6 +34,86 @@ pub struct Settings {
     pub split_depth: u32,
     /// Largest gather radius, as a fraction of the scene's bounding-box diagonal.
     pub max_radius_rel: f32,
+    /// Radiance estimate: plain kNN, or the paper's grid-adaptive radius.
+    pub method: Method,
+    /// Cells along the longer side of each plane's grid (the paper: 128).
+    pub grid_res: usize,
+    /// Wavelet for the count textures.
+    pub wavelet: WaveletChoice,
+    /// Thresholding of the wavelet details.
+    pub threshold: ThresholdChoice,
+    /// Value of the fixed threshold (photon counts), for `threshold = fixed`.
+    pub threshold_value: f32,
+    /// Wavelet levels (at most; fewer on small grids).
+    pub wavelet_levels: usize,
+    /// Share of the kNN radius error kept: `r = r_a + α (r_k − r_a)` (the paper: 0.1).
+    pub alpha: f32,
+    /// Below this filtered count per cell (shadows, dark corners) the kNN radius is used.
+    pub shadow_count: f32,
+    /// Whether the textures count photons or flux.
+    pub grid_quantity: GridQuantity,
+    /// Final-gather rays per camera sample (0: show the photon map directly, as the paper).
+    pub gather: u32,
+    /// Photons per precomputed irradiance estimate (final gathering).
+    pub gather_neighbours: usize,
+    /// Every how many photons an irradiance point is precomputed.
+    pub gather_stride: usize,
+}
+
+/// Wavelet for the count textures (`none` skips filtering).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum WaveletChoice {
+    /// No filtering: raw counts.
+    None,
+    /// Haar.
+    Haar,
+    /// CDF 5/3 (LeGall) lifting.
+    Cdf53,
+    /// CDF 9/7 lifting.
+    Cdf97,
+}
+
+/// Thresholding of wavelet detail coefficients.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum ThresholdChoice {
+    /// Keep all details (perfect reconstruction).
+    None,
+    /// The paper's fixed threshold on raw counts (`threshold_value`), hard.
+    Fixed,
+    /// Anscombe transform, σ from the finest band, hard threshold σ√(2 ln n).
+    Universal,
+    /// As universal, soft thresholding.
+    UniversalSoft,
+    /// Anscombe transform, BayesShrink per subband.
+    Bayes,
+}
+
+impl Settings {
+    /// The wavelet, or None for no filtering.
+    pub fn wavelet(&self) -> Option<Wavelet> {
+        match self.wavelet {
+            WaveletChoice::None => None,
+            WaveletChoice::Haar => Some(Wavelet::Haar),
+            WaveletChoice::Cdf53 => Some(Wavelet::Cdf53),
+            WaveletChoice::Cdf97 => Some(Wavelet::Cdf97),
+        }
+    }
+
+    /// The threshold rule.
+    pub fn threshold(&self) -> Threshold {
+        match self.threshold {
+            ThresholdChoice::None => Threshold::None,
+            ThresholdChoice::Fixed => Threshold::Fixed {
+                value: self.threshold_value,
+                soft: false,
+            },
+            ThresholdChoice::Universal => Threshold::Universal { soft: false },
+            ThresholdChoice::UniversalSoft => Threshold::Universal { soft: true },
+            ThresholdChoice::Bayes => Threshold::BayesShrink,
+        }
+    }
 }
 
 impl Default for Settings {
@@ -49,6 +131,18 @@ impl Default for Settings {
             max_specular_depth: 12,
             split_depth: 2,
             max_radius_rel: 0.05,
+            method: Method::Knn,
+            grid_res: 128,
+            wavelet: WaveletChoice::Haar,
+            threshold: ThresholdChoice::Universal,
+            threshold_value: 4.0,
+            wavelet_levels: 4,
+            alpha: 0.1,
+            shadow_count: 2.0,
+            grid_quantity: GridQuantity::Count,
+            gather: 0,
+            gather_neighbours: 64,
+            gather_stride: 4,
         }
     }
 }
@@ -71,6 +165,15 @@ impl Settings {
         }
         if !(self.max_radius_rel > 0.0 && self.max_radius_rel.is_finite()) {
             return Err("max_radius_rel must be a positive number".into());
+        }
+        if self.grid_res == 0 || self.grid_res > 4096 {
+            return Err("--grid-res must be between 1 and 4096".into());
+        }
+        if !(0.0..=1.0).contains(&self.alpha) {
+            return Err("--alpha must be between 0 and 1".into());
+        }
+        if !(self.shadow_count >= 0.0) {
+            return Err("--shadow-count must be ≥ 0".into());
         }
         Ok(())
     }

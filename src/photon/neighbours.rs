@@ -7,14 +7,20 @@
 //! * The top-level grid covers the bounding box of the items with the caller's cell size. Its
 //!   cell count is capped (`min(2^24, 4 n)`) by enlarging the cell size, so its dense offset
 //!   table (counting sort, one `u32` per cell) is never larger than about 16 bytes per item.
-//! * Any cell holding more than [`DENSE_CELL`] items (bright caustics, or everything when the
-//!   cap forced huge cells over a mostly empty bounding box) gets a child grid over the tight
-//!   bounding box of its items, sized for a few items per occupied sub-cell; child grids nest
-//!   up to [`MAX_DEPTH`] levels. Because items of a cell are contiguous, a child grid simply
-//!   re-sorts that sub-range. This replaces a hashed cell table: memory stays `O(n)` whatever
-//!   the bounding box, and resolution adapts to the local density.
+//! * Any cell holding more than 160 items (bright caustics, or everything when the cap forced
+//!   huge cells over a mostly empty bounding box) gets a child grid over the tight bounding box
+//!   of its items, sized for about 12 items per occupied sub-cell; child grids nest up to 8
+//!   levels. Because the items of a cell are contiguous, a child grid simply re-sorts that
+//!   sub-range. This replaces a hashed cell table: memory stays `O(n)` whatever the bounding
+//!   box (a hashed table at the requested tiny cell size would also be `O(n)`, but a search
+//!   would then have to probe huge numbers of empty cells), and resolution follows the local
+//!   density.
 //! * Cells along x are adjacent in memory, so a query scans each (y, z) row of cells cut by the
-//!   query sphere as one contiguous run of items.
+//!   query sphere (trimmed to the sphere's x extent in that row) as one contiguous run of items.
+//! * The query is memory-latency bound, so the runs of up to 16 rows are first located and one
+//!   float of each of their cache lines read, then scanned: the cache misses overlap instead of
+//!   being paid one after another. The distance filter is branch-free (every candidate key is
+//!   written, the write index advances only for hits).
 //!
 //! # k nearest neighbours
 //! The first search radius is estimated from the item count of the 3×3×3 block of cells around
@@ -36,24 +42,15 @@ const MAX_ROOT_CELLS: usize = 1 << 24;
 /// The top-level grid has at most this many cells per item.
 const ROOT_CELLS_PER_ITEM: usize = 4;
 /// Cells holding more items than this get a child grid.
-pub const DENSE_CELL: u32 = 160;
+const DENSE_CELL: u32 = 160;
 /// Wanted items per occupied cell of a child grid.
 const CHILD_TARGET: f32 = 12.0;
 /// A child grid has at most this many cells per item.
 const CHILD_CELLS_PER_ITEM: usize = 2;
 /// Maximum nesting depth of child grids.
-pub const MAX_DEPTH: u32 = 8;
+const MAX_DEPTH: u32 = 8;
 /// Safety factor applied to the estimated kNN radius.
 const EST_SAFETY: f32 = 1.1;
-/// TEMP stats: [queries, iterations, rows, scanned, pushed]
-pub static STATS: [std::sync::atomic::AtomicU64; 5] = [const { std::sync::atomic::AtomicU64::new(0) }; 5];
-fn stat(i: usize, v: u64) {
-    STATS[i].fetch_add(v, std::sync::atomic::Ordering::Relaxed);
-}
-/// TEMP safety
-pub static SAFETY: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0x3f8ccccd);
-/// TEMP tuning knob.
-pub static TUNE: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(5);
 /// Number of cell rows whose memory is requested together before they are scanned.
 const ROW_BATCH: usize = 16;
 /// Items examined per branch-free filtering step (a power of two).
@@ -115,7 +112,7 @@ impl Node {
 }
 
 /// Uniform-grid spatial index that owns its items, sorted by cell.
-#[derive(Clone, Debug)]
+#[derive(Clone)]
 pub struct PointGrid<T> {
     /// Items sorted by cell (and by sub-cell inside dense cells).
     items: Vec<T>,
@@ -127,6 +124,19 @@ pub struct PointGrid<T> {
     cell_size: f32,
     /// Absolute padding for culling, proportional to the magnitude of the coordinates.
     pad_abs: f32,
+}
+
+impl<T> std::fmt::Debug for PointGrid<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let root = self.nodes.first();
+        f.debug_struct("PointGrid")
+            .field("len", &self.items.len())
+            .field("cell_size", &self.cell_size)
+            .field("dims", &root.map(|r| [r.nx, r.ny, r.nz]))
+            .field("bounds", &root.map(|r| (r.lo, r.hi)))
+            .field("child_grids", &self.nodes.len().saturating_sub(1))
+            .finish()
+    }
 }
 
 /// Reusable per-thread scratch for knn (avoids allocation per query).
@@ -324,6 +334,78 @@ fn counting_sort(pos: &mut [[f32; 3]], perm: &mut [u32], keys: &[u32], ncells: u
     offsets
 }
 
+/// Parallel stable counting sort of `pos` by `keys` for the top level. Returns the offsets
+/// (length `ncells + 1`), the sorted positions and the permutation (sorted slot -> input index).
+///
+/// Each of `parts` workers owns a range of cells: it scans all keys and handles only those in
+/// its range, so histogram and scatter write disjoint slices (no atomics, no unsafe).
+fn counting_sort_par(pos: &[[f32; 3]], keys: &[u32], ncells: usize) -> (Vec<u32>, Vec<[f32; 3]>, Vec<u32>) {
+    let n = keys.len();
+    let parts = rayon::current_num_threads().clamp(1, 64);
+    if parts == 1 || n < 1 << 12 {
+        let mut pos = pos.to_vec();
+        let mut perm: Vec<u32> = (0..n as u32).collect();
+        let offsets = counting_sort(&mut pos, &mut perm, keys, ncells);
+        return (offsets, pos, perm);
+    }
+    let mut offsets = vec![0u32; ncells + 1];
+    let chunk = ncells.div_ceil(parts);
+    offsets[..ncells].par_chunks_mut(chunk).enumerate().for_each(|(j, h)| {
+        let lo = j * chunk;
+        for &k in keys {
+            let d = (k as usize).wrapping_sub(lo);
+            if d < h.len() {
+                h[d] += 1;
+            }
+        }
+    });
+    // Exclusive prefix sums: offsets[c] = start of cell c.
+    let mut sum = 0u32;
+    for o in offsets.iter_mut() {
+        let c = *o;
+        *o = sum;
+        sum += c;
+    }
+    // Split the cells into ranges holding about n / parts items each.
+    let mut bounds: Vec<usize> = (0..=parts)
+        .map(|j| offsets[..ncells].partition_point(|&o| (o as usize) < n * j / parts))
+        .collect();
+    bounds[0] = 0;
+    bounds[parts] = ncells;
+    bounds.dedup();
+    let mut new_pos = vec![[0.0f32; 3]; n];
+    let mut perm = vec![0u32; n];
+    let mut tasks = Vec::with_capacity(bounds.len());
+    {
+        let mut rest_pos: &mut [[f32; 3]] = &mut new_pos;
+        let mut rest_perm: &mut [u32] = &mut perm;
+        for w in bounds.windows(2) {
+            let (c0, c1) = (w[0], w[1]);
+            let len = (offsets[c1] - offsets[c0]) as usize;
+            let (a, b) = std::mem::take(&mut rest_pos).split_at_mut(len);
+            rest_pos = b;
+            let (c, d) = std::mem::take(&mut rest_perm).split_at_mut(len);
+            rest_perm = d;
+            tasks.push((c0, c1, a, c));
+        }
+    }
+    let offsets_ref = &offsets;
+    tasks.into_par_iter().for_each(|(c0, c1, out_pos, out_perm)| {
+        let base = offsets_ref[c0];
+        let mut cursor: Vec<u32> = offsets_ref[c0..c1].iter().map(|&o| o - base).collect();
+        for (i, &k) in keys.iter().enumerate() {
+            let d = (k as usize).wrapping_sub(c0);
+            if d < cursor.len() {
+                let dst = cursor[d] as usize;
+                cursor[d] += 1;
+                out_pos[dst] = pos[i];
+                out_perm[dst] = i as u32;
+            }
+        }
+    });
+    (offsets, new_pos, perm)
+}
+
 /// Build a child grid (and its descendants) over `pos` / `perm`, whose first item has the
 /// absolute index `base`. Returns `None` when subdividing would not help (degenerate extent).
 /// Node 0 of the result is the child's own grid; child indices are relative to the result.
@@ -333,14 +415,14 @@ fn build_subtree(pos: &mut [[f32; 3]], perm: &mut [u32], base: usize, depth: u32
     let ext = hi - lo;
     let mut e = ext.to_array();
     e.sort_unstable_by(|a, b| b.total_cmp(a));
-    if !(e[0] > 0.0) || !e[0].is_finite() {
+    if e[0] <= 0.0 || !e[0].is_finite() {
         return None;
     }
     let mf = m as f32;
     // Cell size for ~CHILD_TARGET items per occupied cell if the items lie on a surface
     // (or on a line, whichever gives bigger cells).
     let h = (e[0] * CHILD_TARGET / mf).max((e[0] * e[1] * CHILD_TARGET / mf).sqrt());
-    if !(h > 0.0) || !h.is_finite() {
+    if h <= 0.0 || !h.is_finite() {
         return None;
     }
     let (cell, [nx, ny, nz]) = grid_dims(ext, h, (CHILD_CELLS_PER_ITEM * m).max(8));
@@ -414,6 +496,15 @@ trait Sink {
     fn radius2(&self) -> f32;
     /// Examine items `start..end`.
     fn scan(&mut self, start: usize, end: usize);
+    /// Load every cache line `scan(start, end)` will read (the result only defeats dead-code
+    /// elimination). Called for a batch of ranges before any is scanned, so the misses overlap.
+    fn touch(&self, start: usize, end: usize) -> u32;
+}
+
+/// Read one float of every cache line of `pos[start..end]` (12-byte items, 64-byte lines).
+#[inline(always)]
+fn touch_positions(pos: &[[f32; 3]], start: usize, end: usize) -> u32 {
+    pos[start..end].iter().step_by(5).fold(0, |a, p| a ^ p[0].to_bits())
 }
 
 /// Gathers accepted items with `lo2 < d² <= hi2` as packed keys for kNN.
@@ -445,6 +536,11 @@ impl<T, F: Fn(&T) -> bool> Sink for KnnSink<'_, T, F> {
     #[inline(always)]
     fn radius2(&self) -> f32 {
         self.hi2
+    }
+
+    #[inline(always)]
+    fn touch(&self, start: usize, end: usize) -> u32 {
+        touch_positions(self.pos, start, end)
     }
 
     #[inline(always)]
@@ -490,13 +586,27 @@ impl<T, F: FnMut(&T, f32)> Sink for EachSink<'_, T, F> {
     }
 
     #[inline(always)]
+    fn touch(&self, start: usize, end: usize) -> u32 {
+        touch_positions(self.pos, start, end)
+    }
+
+    #[inline(always)]
     fn scan(&mut self, start: usize, end: usize) {
         let q = self.q;
-        for (p, it) in self.pos[start..end].iter().zip(&self.items[start..end]) {
-            let d2 = dist2(*p, q);
-            if d2 <= self.r2 {
-                (self.f)(it, d2);
+        let r2 = self.r2;
+        let mut tmp = [(0u32, 0f32); SCAN_CHUNK];
+        let mut base = start;
+        for chunk in self.pos[start..end].chunks(SCAN_CHUNK) {
+            let mut n = 0usize;
+            for (j, p) in chunk.iter().enumerate() {
+                let d2 = dist2(*p, q);
+                tmp[n & (SCAN_CHUNK - 1)] = ((base + j) as u32, d2);
+                n += (d2 <= r2) as usize;
             }
+            for &(i, d2) in &tmp[..n] {
+                (self.f)(&self.items[i as usize], d2);
+            }
+            base += chunk.len();
         }
     }
 }
@@ -513,6 +623,11 @@ impl Sink for CountSink<'_> {
     #[inline(always)]
     fn radius2(&self) -> f32 {
         self.r2
+    }
+
+    #[inline(always)]
+    fn touch(&self, start: usize, end: usize) -> u32 {
+        touch_positions(self.pos, start, end)
     }
 
     #[inline(always)]
@@ -564,8 +679,8 @@ impl<T> PointGrid<T> {
         };
         let off = &node.offsets[..];
         let has_children = !node.children.is_empty();
-        // Rows are collected in batches and their first items touched before scanning, so
-        // that the cache misses of a batch overlap instead of being paid one after another.
+        // Rows are collected in batches and every cache line of their items touched before
+        // scanning, so that the misses of a batch overlap instead of being paid one by one.
         let mut runs = [(0u32, 0u32); ROW_BATCH];
         let mut nruns = 0usize;
         let mut touch = 0u32;
@@ -604,27 +719,8 @@ impl<T> PointGrid<T> {
                     nruns = 0;
                     self.visit_cells(node, row + x0, row + x1, q, pad, sink);
                 } else {
-                    let tm = TUNE.load(std::sync::atomic::Ordering::Relaxed);
-                    if tm & 1 != 0 {
-                        touch ^= self.pos[s as usize][0].to_bits();
-                    }
-                    if tm & 4 != 0 {
-                        for pp in self.pos[s as usize..e as usize].iter().step_by(5) {
-                            touch ^= pp[0].to_bits();
-                        }
-                    }
-                    if tm & 8 != 0 {
-                        for pp in self.pos[s as usize..e as usize].iter().step_by(5).take(8) {
-                            touch ^= pp[0].to_bits();
-                        }
-                    }
-                    if tm & 2 != 0 {
-                        touch ^= self.pos[(s as usize + e as usize) / 2][0].to_bits()
-                            ^ self.pos[e as usize - 1][0].to_bits();
-                    }
+                    touch ^= sink.touch(s as usize, e as usize);
                     runs[nruns] = (s, e);
-                    stat(2, 1);
-                    stat(3, (e - s) as u64);
                     nruns += 1;
                     if nruns < ROW_BATCH {
                         continue;
@@ -706,8 +802,7 @@ impl<T> PointGrid<T> {
             let c = node.cell;
             let area = (b[2] * b[1]) as f32 * c * c;
             let r = if n > 0 {
-                (k as f32 * area / (PI * n as f32)).sqrt()
-                    * f32::from_bits(SAFETY.load(std::sync::atomic::Ordering::Relaxed))
+                (k as f32 * area / (PI * n as f32)).sqrt() * EST_SAFETY
             } else {
                 2.0 * c
             };
@@ -760,10 +855,11 @@ impl<T: Positioned + Send + Sync + Clone> PointGrid<T> {
         let max_cells = (ROOT_CELLS_PER_ITEM * n).clamp(1, MAX_ROOT_CELLS);
         let (cell, [nx, ny, nz]) = grid_dims(ext, cell0, max_cells);
         let inv = 1.0 / cell;
-        let (cell, inv) = if inv.is_finite() && inv > 0.0 {
+        let (cell, inv) = if inv.is_finite() && inv > 0.0 && cell.is_finite() {
             (cell, inv)
         } else {
-            (1.0, 1.0)
+            // Extent beyond f32 range: one cell whose slab still covers every item.
+            (f32::MAX, 1.0 / f32::MAX)
         };
         let ncells = nx * ny * nz;
         let keys: Vec<u32> = pos
@@ -775,9 +871,10 @@ impl<T: Positioned + Send + Sync + Clone> PointGrid<T> {
                 ((z * ny + y) * nx + x) as u32
             })
             .collect();
-        let mut perm: Vec<u32> = (0..n as u32).collect();
-        let offsets = counting_sort(&mut pos, &mut perm, &keys, ncells);
+        let sorted = counting_sort_par(&pos, &keys, ncells);
         drop(keys);
+        drop(pos);
+        let (offsets, mut pos, mut perm) = sorted;
 
         // Child grids for dense cells, built in parallel over disjoint sub-slices.
         let dense: Vec<(usize, usize, usize)> = offsets
@@ -904,7 +1001,6 @@ impl<T: Positioned + Send + Sync + Clone> PointGrid<T> {
                 accept: &accept,
             };
             self.visit(0, p, pad, &mut sink);
-            stat(1, 1);
             let m = out.keys.len();
             if m >= k || last {
                 break;
@@ -918,8 +1014,6 @@ impl<T: Positioned + Send + Sync + Clone> PointGrid<T> {
             r = (r * grow).min(r_all);
         }
         let keys = &mut out.keys;
-        stat(0, 1);
-        stat(4, keys.len() as u64);
         let result = if keys.len() >= k {
             if keys.len() > k {
                 keys.select_nth_unstable(k - 1);
@@ -939,7 +1033,7 @@ impl<T: Positioned + Send + Sync + Clone> PointGrid<T> {
     ///
     /// Items at exactly `r` are included; nothing is reported for a NaN or negative `r`.
     pub fn for_each_within<F: FnMut(&T, f32)>(&self, p: Vec3, r: f32, f: F) {
-        if self.is_empty() || !p.is_finite() || !(r >= 0.0) {
+        if self.is_empty() || !p.is_finite() || r.is_nan() || r < 0.0 {
             return;
         }
         let mut sink = EachSink {
@@ -954,7 +1048,7 @@ impl<T: Positioned + Send + Sync + Clone> PointGrid<T> {
 
     /// Count of items within r (cheap helper).
     pub fn count_within(&self, p: Vec3, r: f32) -> usize {
-        if self.is_empty() || !p.is_finite() || !(r >= 0.0) {
+        if self.is_empty() || !p.is_finite() || r.is_nan() || r < 0.0 {
             return 0;
         }
         let mut sink = CountSink {
@@ -1016,7 +1110,7 @@ mod tests {
             let face = (self.next_u64() % 6) as usize;
             let u = self.range(-half, half);
             let v = self.range(-half, half);
-            let s = if face % 2 == 0 { half } else { -half };
+            let s = if face.is_multiple_of(2) { half } else { -half };
             match face / 2 {
                 0 => Vec3::new(s, u, v),
                 1 => Vec3::new(u, s, v),
@@ -1169,6 +1263,20 @@ mod tests {
             f32::INFINITY,
         ] {
             let g = PointGrid::build(items.clone(), cell);
+            let root = &g.nodes[0];
+            let cells = root.nx * root.ny * root.nz;
+            assert!(cells <= 4 * n, "cell count {cells} not capped for cell size {cell}");
+            assert!(g.cell_size() > 0.0 && g.cell_size().is_finite());
+            if cell > 0.0 {
+                assert!(
+                    g.cell_size() >= cell.min(2.0),
+                    "cell size shrank: {cell} -> {}",
+                    g.cell_size()
+                );
+            }
+            if cell >= 3.0 {
+                assert_eq!(cells, 1, "a huge cell size gives one top-level cell");
+            }
             let mut rng = Rng(4);
             let mut buf = KnnBuffer::default();
             for _ in 0..60 {
@@ -1303,6 +1411,17 @@ mod tests {
             }
             check_within(&g, q, 0.02);
         }
+        // Coordinates spanning more than f32::MAX (extent overflows, distances overflow to inf).
+        let mut pts = box_points(300, 17);
+        pts.extend([Vec3::splat(3e38), Vec3::splat(-3e38), Vec3::new(3e38, -3e38, 0.0)]);
+        let g = PointGrid::build(items_from(pts), 0.1);
+        for q in [Vec3::ZERO, Vec3::splat(1e38), Vec3::new(1.0, 0.5, -1.0)] {
+            for &k in &[1usize, 10, 303] {
+                check_knn(&g, q, k, f32::INFINITY, |_| true, &mut buf);
+                check_knn(&g, q, k, 1.5, |_| true, &mut buf);
+            }
+            check_within(&g, q, 0.5);
+        }
         // k larger than the number of points, and k = 0.
         let g = PointGrid::build(items_from(box_points(500, 10)), 0.1);
         check_knn(&g, Vec3::ZERO, 501, f32::INFINITY, |_| true, &mut buf);
@@ -1332,12 +1451,12 @@ mod tests {
         let g = PointGrid::build(items_from(box_points(n, 12)), suggest_cell_size(n, 24.0, 30));
         let mut rng = Rng(13);
         let mut buf = KnnBuffer::new();
-        let even = |it: &Item| it.id % 2 == 0;
-        let rare = |it: &Item| it.id % 97 == 0;
+        let even = |it: &Item| it.id.is_multiple_of(2);
+        let rare = |it: &Item| it.id.is_multiple_of(97);
         for _ in 0..200 {
             let q = rng.on_box_faces(1.0);
             check_knn(&g, q, 30, f32::INFINITY, even, &mut buf);
-            assert!(buf.iter().all(|&(i, _)| g.items()[i as usize].id % 2 == 0));
+            assert!(buf.iter().all(|&(i, _)| g.items()[i as usize].id.is_multiple_of(2)));
             check_knn(&g, q, 30, f32::INFINITY, rare, &mut buf);
             check_knn(&g, q, 30, 0.2, rare, &mut buf);
             check_knn(&g, q, 5, 1.0, |_| false, &mut buf);
@@ -1413,11 +1532,11 @@ mod tests {
     }
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(300))]
+        #![proptest_config(ProptestConfig::with_cases(500))]
         #[test]
         fn prop_knn_and_range_match_brute_force(
             mode in 0u8..6,
-            n in 0usize..400,
+            n in 0usize..20000,
             seed in any::<u64>(),
             scale_exp in -3i32..5,
             cell_exp in -12i32..12,
@@ -1440,7 +1559,7 @@ mod tests {
                 };
                 match filter {
                     0 => check_knn(&g, q, k, max_r, |_| true, &mut buf),
-                    1 => check_knn(&g, q, k, max_r, |it| it.id % 2 == 0, &mut buf),
+                    1 => check_knn(&g, q, k, max_r, |it| it.id.is_multiple_of(2), &mut buf),
                     _ => check_knn(&g, q, k, max_r, |it| it.id % 7 == 3, &mut buf),
                 }
                 check_within(&g, q, rng.range(0.0, 0.6) * scale);

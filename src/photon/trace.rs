@@ -22,6 +22,8 @@ pub struct TraceSettings {
     pub store_direct: bool,
     /// Random seed.
     pub seed: u64,
+    /// Also return the triangle each photon landed on (for the plane grids).
+    pub record_triangles: bool,
 }
 
 /// What the photon pass produced.
@@ -45,12 +47,13 @@ pub struct PhotonStats {
 const CHUNK: usize = 8192;
 
 /// Trace `settings.photons` photon paths. Deterministic for a seed, whatever the thread count.
+/// Returns the photons, the triangle of each (empty unless `record_triangles`), and counts.
 pub fn trace_photons(
     scene: &Scene,
     accel: &Accel,
     settings: &TraceSettings,
     progress: &(dyn Fn(usize) + Sync),
-) -> (Vec<Photon>, PhotonStats) {
+) -> (Vec<Photon>, Vec<u32>, PhotonStats) {
     let weights: Vec<f32> = scene
         .lights
         .iter()
@@ -66,10 +69,14 @@ pub fn trace_photons(
         .collect();
     let total = acc;
     let n = settings.photons;
-    let chunks: Vec<Vec<Photon>> = (0..n.div_ceil(CHUNK))
+    let chunks: Vec<(Vec<Photon>, Vec<u32>)> = (0..n.div_ceil(CHUNK))
         .into_par_iter()
         .map(|c| {
-            let mut out = Vec::with_capacity(CHUNK * 2);
+            let mut out = Out {
+                photons: Vec::with_capacity(CHUNK * 2),
+                triangles: Vec::new(),
+                record: settings.record_triangles,
+            };
             let end = ((c + 1) * CHUNK).min(n);
             for i in c * CHUNK..end {
                 let mut rng = Rng::keyed(settings.seed, stream::PHOTONS, i as u64);
@@ -80,12 +87,18 @@ pub fn trace_photons(
                 trace_path(scene, accel, settings, e.origin, e.direction, power, &mut rng, &mut out);
             }
             progress(end - c * CHUNK);
-            out
+            (out.photons, out.triangles)
         })
         .collect();
-    let mut photons = Vec::with_capacity(chunks.iter().map(|c| c.len()).sum());
-    for c in chunks {
-        photons.extend_from_slice(&c);
+    let mut photons = Vec::with_capacity(chunks.iter().map(|c| c.0.len()).sum());
+    let mut triangles = Vec::with_capacity(if settings.record_triangles {
+        photons.capacity()
+    } else {
+        0
+    });
+    for (p, t) in chunks {
+        photons.extend_from_slice(&p);
+        triangles.extend_from_slice(&t);
     }
     let mut stats = PhotonStats {
         emitted: n,
@@ -100,7 +113,23 @@ pub fn trace_photons(
             PhotonKind::Indirect => stats.indirect += 1,
         }
     }
-    (photons, stats)
+    (photons, triangles, stats)
+}
+
+/// Per-thread output of the tracer.
+struct Out {
+    photons: Vec<Photon>,
+    triangles: Vec<u32>,
+    record: bool,
+}
+
+impl Out {
+    fn push(&mut self, p: Photon, triangle: u32) {
+        self.photons.push(p);
+        if self.record {
+            self.triangles.push(triangle);
+        }
+    }
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -112,7 +141,7 @@ fn trace_path(
     mut dir: Vec3,
     mut power: Rgb,
     rng: &mut Rng,
-    out: &mut Vec<Photon>,
+    out: &mut Out,
 ) {
     let mut kind = PhotonKind::Direct;
     for _depth in 0..settings.max_depth {
@@ -128,7 +157,10 @@ fn trace_path(
                     return;
                 }
                 if kind != PhotonKind::Direct || settings.store_direct {
-                    out.push(Photon::new(sp.position, power, sp.facing_normal, -dir, kind));
+                    out.push(
+                        Photon::new(sp.position, power, sp.facing_normal, -dir, kind),
+                        hit.triangle,
+                    );
                 }
                 // Russian roulette on the largest channel keeps the photon power nearly constant.
                 let q = albedo.max_element().min(1.0);

@@ -3,10 +3,11 @@
 
 use crate::accel::Accel;
 use crate::bsdf;
-use crate::estimate::{density_radiance, PhotonMap};
+use crate::estimate::{density_radiance, Gather, IrradianceCache, PhotonMap};
 use crate::film::{Aov, Film};
+use crate::grid::{assumed_radius, blended_radius, PlaneGrids};
 use crate::photon::neighbours::KnnBuffer;
-use crate::sampling::{stream, Rng};
+use crate::sampling::{self, stream, Rng};
 use crate::scene::{Camera, Scene, Surface};
 use crate::surface::SurfacePoint;
 use crate::Rgb;
@@ -21,6 +22,16 @@ pub enum DirectLighting {
     ShadowRays,
     /// The paper's single map: all light, direct included, from photons.
     Photons,
+}
+
+/// How the photon estimate chooses its radius.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// Classic k nearest neighbours (Jensen): r = distance to the k-th photon.
+    Knn,
+    /// The paper's: assumed radius from the filtered plane grids, blended with r_k.
+    Adaptive,
 }
 
 /// Settings of the camera pass.
@@ -44,6 +55,14 @@ pub struct RenderSettings {
     pub split_depth: u32,
     /// Random seed.
     pub seed: u64,
+    /// Radius choice.
+    pub method: Method,
+    /// Blend factor α of `r = r_a + α (r_k − r_a)`.
+    pub alpha: f32,
+    /// Filtered count per cell below which r_k is used.
+    pub shadow_count: f32,
+    /// Final-gather rays per camera sample (0: none).
+    pub gather: u32,
 }
 
 /// Per-thread state of the camera pass.
@@ -51,6 +70,8 @@ struct Tracer<'a> {
     scene: &'a Scene,
     accel: &'a Accel,
     map: &'a PhotonMap,
+    grids: Option<&'a PlaneGrids>,
+    irradiance: Option<&'a IrradianceCache>,
     settings: &'a RenderSettings,
     knn: KnnBuffer,
 }
@@ -60,6 +81,8 @@ pub fn render(
     scene: &Scene,
     accel: &Accel,
     map: &PhotonMap,
+    grids: Option<&PlaneGrids>,
+    irradiance: Option<&IrradianceCache>,
     camera: &Camera,
     settings: &RenderSettings,
     progress: &(dyn Fn(usize) + Sync),
@@ -76,6 +99,8 @@ pub fn render(
                 scene,
                 accel,
                 map,
+                grids,
+                irradiance,
                 settings,
                 knn: KnnBuffer::default(),
             },
@@ -166,16 +191,104 @@ impl Tracer<'_> {
         if self.settings.direct == DirectLighting::ShadowRays {
             l += bsdf::lambert(albedo) * self.direct_irradiance(sp, rng);
         }
-        let g = self
-            .map
-            .knn(sp.position, sp.facing_normal, self.settings.neighbours, &mut self.knn);
+        let g = self.gather(sp);
         l += density_radiance(albedo, g.flux, g.r2);
+        if let (Some(cache), true) = (self.irradiance, self.settings.gather > 0) {
+            l += albedo * self.final_gather(sp, cache, rng);
+        }
         if let Some(a) = aov.take() {
             a.albedo = albedo;
             a.density = g.count as f32 / (std::f32::consts::PI * g.r2.max(1e-30));
             a.radius = g.r2.sqrt();
         }
         l
+    }
+
+    /// Mean radiance arriving over the hemisphere from other surfaces (cosine-weighted
+    /// directions, so indirect radiance = albedo × this mean), read from precomputed irradiance
+    /// at the first diffuse surface each gather ray reaches through mirrors and glass.
+    fn final_gather(&mut self, sp: &SurfacePoint, cache: &IrradianceCache, rng: &mut Rng) -> Rgb {
+        let n = self.settings.gather;
+        let mut sum = Rgb::ZERO;
+        for _ in 0..n {
+            let d = sampling::cosine_hemisphere(rng.uniform2(), sp.facing_shading_normal);
+            if d.dot(sp.facing_normal) <= 0.0 {
+                continue;
+            }
+            sum += self.gather_ray(sp.offset(d), d, 0, cache, rng);
+        }
+        sum / n as f32
+    }
+
+    /// Radiance leaving the first diffuse surface along a gather ray, emission excluded (direct
+    /// light is counted by shadow rays, light through glass by caustic photons).
+    fn gather_ray(&mut self, o: Vec3, d: Vec3, depth: u32, cache: &IrradianceCache, rng: &mut Rng) -> Rgb {
+        let Some(hit) = self.accel.intersect(o, d, f32::INFINITY) else {
+            return Rgb::ZERO;
+        };
+        let sp = SurfacePoint::new(self.scene, o, d, hit);
+        match &self.scene.materials[sp.material as usize].surface {
+            Surface::Lambert { .. } => {
+                let e = cache.lookup(sp.position, sp.facing_normal, &mut self.knn);
+                bsdf::lambert(sp.albedo(self.scene)) * e
+            }
+            _ if depth >= 4 => Rgb::ZERO,
+            Surface::Mirror { f0 } => {
+                let f = bsdf::fresnel_schlick(*f0, -d.dot(sp.facing_shading_normal));
+                let r = bsdf::reflect(d, sp.facing_shading_normal);
+                f * self.gather_ray(sp.offset(r), r, depth + 1, cache, rng)
+            }
+            Surface::Dielectric { ior, tint, absorption } => {
+                let mut w = Rgb::ONE;
+                if let (Some(sigma), true) = (absorption, sp.backface) {
+                    w = (-*sigma * hit.t).exp();
+                }
+                let (r, t) = bsdf::dielectric_branches(d, sp.geometric_normal, *ior, *tint);
+                let s = match t {
+                    Some(t) if rng.uniform() >= r.weight.x => bsdf::SpecularSample {
+                        weight: t.weight / (1.0 - r.weight.x),
+                        ..t
+                    },
+                    Some(_) => bsdf::SpecularSample { weight: Rgb::ONE, ..r },
+                    None => r,
+                };
+                w * s.weight * self.gather_ray(sp.offset(s.direction), s.direction, depth + 1, cache, rng)
+            }
+        }
+    }
+
+    /// Photons around a diffuse point, with the radius the method chooses.
+    fn gather(&mut self, sp: &SurfacePoint) -> Gather {
+        let k = self.settings.neighbours;
+        let gk = self.map.knn(sp.position, sp.facing_normal, k, &mut self.knn);
+        if self.settings.method == Method::Knn {
+            return gk;
+        }
+        let Some((count, cell_area)) = self.grids.and_then(|g| g.count_at(sp.triangle, sp.position)) else {
+            return gk; // not on a plane: plain kNN
+        };
+        if count < self.settings.shadow_count || gk.count < k {
+            return gk; // shadow fallback: the assumed radius is unreliable here
+        }
+        let r_k = gk.r2.sqrt();
+        let r = blended_radius(assumed_radius(k, cell_area, count), r_k, self.settings.alpha).min(self.map.max_radius);
+        if r <= r_k {
+            let items = self.map.grid().items();
+            let r2 = r * r;
+            let mut g = Gather {
+                r2,
+                ..Default::default()
+            };
+            for &(i, d2) in self.knn.as_slice() {
+                if d2 <= r2 {
+                    g.flux += items[i as usize].power();
+                    g.count += 1;
+                }
+            }
+            g
+        } else {
+            self.map.within(sp.position, sp.facing_normal, r)
+        }
     }
 
     /// Irradiance from all lights by shadow rays.
