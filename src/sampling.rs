@@ -64,6 +64,34 @@ pub mod stream {
     pub const PHOTONS: u64 = 1;
     /// Camera samples.
     pub const CAMERA: u64 = 2;
+    /// Per-pixel stratification.
+    pub const PIXEL: u64 = 3;
+}
+
+/// N-rooks (Latin hypercube) strata for `n` samples of a pixel: sample `s` lies in column
+/// `s` and row `perm[s]` of an n×n grid, so edges are anti-aliased far better than by `n`
+/// independent jitters, for any `n`.
+pub struct NRooks {
+    perm: Vec<u32>,
+}
+
+/// Strata for `n` samples, shuffled by `rng`.
+pub fn n_rooks(n: usize, rng: &mut Rng) -> NRooks {
+    let mut perm: Vec<u32> = (0..n as u32).collect();
+    for i in (1..n).rev() {
+        let j = (rng.next_u32() as usize) % (i + 1);
+        perm.swap(i, j);
+    }
+    NRooks { perm }
+}
+
+impl NRooks {
+    /// Position in [0,1)² of sample `s` given a uniform jitter `u`.
+    pub fn jitter(&self, s: usize, u: Vec2) -> Vec2 {
+        let n = self.perm.len().max(1) as f32;
+        let row = self.perm.get(s).copied().unwrap_or(0) as f32;
+        Vec2::new((s as f32 + u.x) / n, (row + u.y) / n)
+    }
 }
 
 /// An orthonormal basis (t, b, n) around a unit normal (Duff et al. 2017).
@@ -171,6 +199,21 @@ mod tests {
             .sum::<f64>()
             / k as f64;
         assert!((m - 2.0 / 3.0).abs() < 0.003, "{m}");
+    }
+
+    #[test]
+    fn n_rooks_covers_each_row_and_column_once() {
+        let mut r = Rng::keyed(1, 1, 1);
+        let s = n_rooks(7, &mut r);
+        let mut rows: Vec<usize> = (0..7)
+            .map(|i| (s.jitter(i, Vec2::splat(0.5)).y * 7.0) as usize)
+            .collect();
+        let cols: Vec<usize> = (0..7)
+            .map(|i| (s.jitter(i, Vec2::splat(0.5)).x * 7.0) as usize)
+            .collect();
+        rows.sort();
+        assert_eq!(rows, (0..7).collect::<Vec<_>>());
+        assert_eq!(cols, (0..7).collect::<Vec<_>>());
     }
 
     #[test]

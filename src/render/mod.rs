@@ -108,9 +108,10 @@ pub fn render(
                 for x in 0..w as usize {
                     let pixel = (y * w as usize + x) as u64;
                     let mut sum = Rgb::ZERO;
+                    let strata = sampling::n_rooks(spp as usize, &mut Rng::keyed(settings.seed, stream::PIXEL, pixel));
                     for s in 0..spp {
                         let mut rng = Rng::keyed(settings.seed, stream::CAMERA, pixel * spp as u64 + s as u64);
-                        let film_pos = Vec2::new(x as f32, y as f32) + rng.uniform2();
+                        let film_pos = Vec2::new(x as f32, y as f32) + strata.jitter(s as usize, rng.uniform2());
                         let (o, d) = camera.generate_ray(film_pos, w, h);
                         let mut aov = (s == 0).then_some(&mut aovs[x]);
                         sum += tracer.radiance(o, d, 0, &mut rng, &mut aov);
