@@ -173,8 +173,8 @@ class PhotongridRenderEngine(bpy.types.RenderEngine):
                 settings=core.settings_from_scene(scene),
                 camera=camera_name,
                 size=(width, height),
-                on_status=lambda text: self.update_stats("", text),
-                on_progress=self.update_progress,
+                on_status=self.show_status,
+                on_progress=self.show_progress,
                 should_cancel=self.cancel_requested,
             )
             self.update_stats("", "photongrid: loading image")
@@ -195,9 +195,17 @@ class PhotongridRenderEngine(bpy.types.RenderEngine):
             else:
                 shutil.rmtree(workdir, ignore_errors=True)
 
+    def show_status(self, text):
+        """The phase, in the render window's header and the status bar."""
+        self.update_stats("", text)
+
+    def show_progress(self, fraction):
+        self.update_progress(fraction)
+
     def cancel_requested(self):
-        """Esc pressed (polled while photongrid runs). A Python method, so tests can stand in
-        for the user: RNA functions such as test_break cannot be replaced on the class."""
+        """Esc pressed (polled while photongrid runs). This and show_* are Python methods so that
+        tests can watch or stand in for the user: RNA functions such as test_break cannot be
+        replaced on the class."""
         return self.test_break()
 
     def fail(self, message):

@@ -249,6 +249,19 @@ def test_exr_readers_agree(binary, tmp_path, monkeypatch):
         core.read_exr_rgba(exr, WIDTH + 1, HEIGHT)
 
 
+def test_progress_shows_phases(addon, binary, tmp_path, monkeypatch):
+    build_scene(tmp_path)
+    statuses, fractions = [], []
+    monkeypatch.setattr(photongrid.PhotongridRenderEngine, "show_status", lambda self, text: statuses.append(text))
+    monkeypatch.setattr(photongrid.PhotongridRenderEngine, "show_progress", lambda self, f: fractions.append(f))
+    bpy.ops.render.render()
+    for phase in ("exporting glTF", "load", "bvh", "photons", "build", "render"):
+        assert f"photongrid: {phase}" in statuses, statuses
+    assert fractions == sorted(fractions) and fractions[-1] == 1.0, fractions
+    # Photons weigh ~40 % (the bar is at ~42 % when they are done), the camera pass ~55 %.
+    assert any(0.40 <= f <= 0.45 for f in fractions), fractions
+
+
 def test_missing_binary_reports_what_to_do(addon, monkeypatch, tmp_path):
     build_scene(tmp_path)
     monkeypatch.delenv(core.ENV_VAR, raising=False)
