@@ -129,6 +129,9 @@ struct RenderArgs {
     /// Whether grid cells count photons or flux.
     #[arg(long, value_enum, default_value_t = Settings::default().grid_quantity)]
     grid_quantity: GridQuantity,
+    /// Extra photon paths aimed at mirrors and glass, for caustics (ignored when there are none).
+    #[arg(long, default_value_t = Settings::default().caustic_photons)]
+    caustic_photons: usize,
     /// Final-gather rays per camera sample (0: show the photon map directly, as the paper).
     #[arg(long, default_value_t = Settings::default().gather)]
     gather: u32,
@@ -222,6 +225,7 @@ fn settings_of(a: &RenderArgs) -> Settings {
         shadow_count: a.shadow_count,
         grid_quantity: a.grid_quantity,
         gather: a.gather,
+        caustic_photons: a.caustic_photons,
         ..Settings::default()
     }
 }

@@ -121,7 +121,7 @@ pub fn prepare(
     times: &mut PhaseTimes,
 ) -> Result<Prepared, RenderError> {
     settings.validate().map_err(RenderError::Settings)?;
-    check_photon_memory(settings.photons)?;
+    check_photon_memory(settings.photons.saturating_add(settings.caustic_photons))?;
 
     let max_radius = settings.max_radius_rel * scene.bounds.diagonal();
     let phase = progress.phase("bvh", 0);
@@ -137,6 +137,7 @@ pub fn prepare(
         store_direct: settings.direct == DirectLighting::Photons || settings.gather > 0,
         seed: settings.seed,
         record_triangles: settings.method == Method::Adaptive,
+        caustic_photons: settings.caustic_photons,
     };
     let phase = progress.phase("photons", settings.photons as u64);
     let (photons, photon_triangles, photon_stats) = {

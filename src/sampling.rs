@@ -64,6 +64,8 @@ pub mod stream {
     pub const PHOTONS: u64 = 1;
     /// Camera samples.
     pub const CAMERA: u64 = 2;
+    /// Photon paths of the caustic pass.
+    pub const CAUSTIC_PHOTONS: u64 = 4;
     /// Per-pixel stratification.
     pub const PIXEL: u64 = 3;
 }

@@ -52,6 +52,9 @@ pub struct Settings {
     pub shadow_count: f32,
     /// Whether the textures count photons or flux.
     pub grid_quantity: GridQuantity,
+    /// Extra photon paths aimed at mirrors and glass for caustics (skipped when the scene has
+    /// none).
+    pub caustic_photons: usize,
     /// Final-gather rays per camera sample (0: show the photon map directly, as the paper).
     pub gather: u32,
     /// Photons per precomputed irradiance estimate (final gathering).
@@ -140,6 +143,7 @@ impl Default for Settings {
             alpha: 0.1,
             shadow_count: 2.0,
             grid_quantity: GridQuantity::Count,
+            caustic_photons: 1_000_000,
             gather: 0,
             gather_neighbours: 64,
             gather_stride: 4,

@@ -1,6 +1,7 @@
 //! Photons: compact records, the tracer that shoots them from the lights, and the spatial
 //! index the render pass searches.
 
+pub mod caustic;
 pub mod neighbours;
 pub mod store;
 pub mod trace;

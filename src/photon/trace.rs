@@ -1,6 +1,7 @@
 //! The photon pass: shoot photons from the lights in proportion to their power, follow glass
 //! and mirrors, store a photon at every diffuse hit, continue by Russian roulette.
 
+use super::caustic::SpecularTargets;
 use super::store::{Photon, PhotonKind};
 use crate::accel::Accel;
 use crate::bsdf;
@@ -24,6 +25,78 @@ pub struct TraceSettings {
     pub seed: u64,
     /// Also return the triangle each photon landed on (for the plane grids).
     pub record_triangles: bool,
+    /// Extra paths aimed at mirrors and glass, storing caustic photons only (0: none; also
+    /// none when the scene has no specular surface).
+    pub caustic_photons: usize,
+}
+
+/// Which photons a pass stores.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum PassKind {
+    /// Every diffuse hit (direct ones if `store_direct`; caustic ones if `store_caustic`).
+    Global { store_caustic: bool },
+    /// Only the first diffuse hit after mirrors/glass; paths that hit a diffuse surface first
+    /// are dropped (the global pass accounts for them).
+    Caustic,
+}
+
+struct Pass {
+    kind: PassKind,
+    stream: u64,
+    paths: usize,
+}
+
+/// Trace `pass.paths` paths in parallel chunks; photon `i` uses its own keyed random stream.
+fn run_pass(
+    scene: &Scene,
+    accel: &Accel,
+    settings: &TraceSettings,
+    pass: &Pass,
+    progress: &(dyn Fn(usize) + Sync),
+    emit: &(dyn Fn(&mut Rng) -> Option<(crate::scene::light::Emission, f32)> + Sync),
+) -> (Vec<Photon>, Vec<u32>) {
+    let n = pass.paths;
+    let chunks: Vec<(Vec<Photon>, Vec<u32>)> = (0..n.div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|c| {
+            let mut out = Out {
+                photons: Vec::with_capacity(CHUNK * 2),
+                triangles: Vec::new(),
+                record: settings.record_triangles,
+            };
+            let end = ((c + 1) * CHUNK).min(n);
+            for i in c * CHUNK..end {
+                let mut rng = Rng::keyed(settings.seed, pass.stream, i as u64);
+                if let Some((e, p_light)) = emit(&mut rng) {
+                    let power = e.flux / (p_light * n as f32);
+                    trace_path(
+                        scene,
+                        accel,
+                        settings,
+                        pass.kind,
+                        e.origin,
+                        e.direction,
+                        power,
+                        &mut rng,
+                        &mut out,
+                    );
+                }
+            }
+            progress(end - c * CHUNK);
+            (out.photons, out.triangles)
+        })
+        .collect();
+    let mut photons = Vec::with_capacity(chunks.iter().map(|c| c.0.len()).sum());
+    let mut triangles = Vec::with_capacity(if settings.record_triangles {
+        photons.capacity()
+    } else {
+        0
+    });
+    for (p, t) in chunks {
+        photons.extend_from_slice(&p);
+        triangles.extend_from_slice(&t);
+    }
+    (photons, triangles)
 }
 
 /// What the photon pass produced.
@@ -33,6 +106,10 @@ pub struct PhotonStats {
     pub emitted: usize,
     /// Photons stored, all kinds.
     pub stored: usize,
+    /// Paths started by the caustic pass (aimed at mirrors and glass).
+    pub caustic_emitted: usize,
+    /// Specular objects the caustic pass aimed at.
+    pub caustic_targets: usize,
     /// Stored direct photons.
     pub direct: usize,
     /// Stored caustic photons.
@@ -68,40 +145,49 @@ pub fn trace_photons(
         })
         .collect();
     let total = acc;
-    let n = settings.photons;
-    let chunks: Vec<(Vec<Photon>, Vec<u32>)> = (0..n.div_ceil(CHUNK))
-        .into_par_iter()
-        .map(|c| {
-            let mut out = Out {
-                photons: Vec::with_capacity(CHUNK * 2),
-                triangles: Vec::new(),
-                record: settings.record_triangles,
-            };
-            let end = ((c + 1) * CHUNK).min(n);
-            for i in c * CHUNK..end {
-                let mut rng = Rng::keyed(settings.seed, stream::PHOTONS, i as u64);
-                let l = sampling::sample_cdf(&cdf, rng.uniform());
-                let p_light = weights[l] / total;
-                let e = scene.lights[l].emit(&mut rng);
-                let power = e.flux / (p_light * n as f32);
-                trace_path(scene, accel, settings, e.origin, e.direction, power, &mut rng, &mut out);
-            }
-            progress(end - c * CHUNK);
-            (out.photons, out.triangles)
-        })
-        .collect();
-    let mut photons = Vec::with_capacity(chunks.iter().map(|c| c.0.len()).sum());
-    let mut triangles = Vec::with_capacity(if settings.record_triangles {
-        photons.capacity()
+    let targets = if settings.caustic_photons > 0 {
+        SpecularTargets::find(scene)
     } else {
-        0
+        SpecularTargets::default()
+    };
+    let caustic_pass = !targets.is_empty();
+    let pick_light = |rng: &mut Rng| {
+        let l = sampling::sample_cdf(&cdf, rng.uniform());
+        (l, weights[l] / total)
+    };
+    // The global pass; when the caustic pass runs, it owns every light → specular → diffuse
+    // photon and the global pass must not store them too.
+    let n = settings.photons;
+    let global = Pass {
+        kind: PassKind::Global {
+            store_caustic: !caustic_pass,
+        },
+        stream: stream::PHOTONS,
+        paths: n,
+    };
+    let (mut photons, mut triangles) = run_pass(scene, accel, settings, &global, progress, &|rng| {
+        let (l, p) = pick_light(rng);
+        let e = scene.lights[l].emit(rng);
+        Some((e, p))
     });
-    for (p, t) in chunks {
+    let nc = if caustic_pass { settings.caustic_photons } else { 0 };
+    if nc > 0 {
+        let pass = Pass {
+            kind: PassKind::Caustic,
+            stream: stream::CAUSTIC_PHOTONS,
+            paths: nc,
+        };
+        let (p, t) = run_pass(scene, accel, settings, &pass, &|_| {}, &|rng| {
+            let (l, p) = pick_light(rng);
+            targets.emit(&scene.lights[l], rng).map(|e| (e, p))
+        });
         photons.extend_from_slice(&p);
         triangles.extend_from_slice(&t);
     }
     let mut stats = PhotonStats {
         emitted: n,
+        caustic_emitted: nc,
+        caustic_targets: targets.targets.len(),
         stored: photons.len(),
         bytes: photons.len() * std::mem::size_of::<Photon>(),
         ..Default::default()
@@ -137,6 +223,7 @@ fn trace_path(
     scene: &Scene,
     accel: &Accel,
     settings: &TraceSettings,
+    pass: PassKind,
     mut origin: Vec3,
     mut dir: Vec3,
     mut power: Rgb,
@@ -156,11 +243,21 @@ fn trace_path(
                 if albedo.max_element() <= 0.0 {
                     return;
                 }
-                if kind != PhotonKind::Direct || settings.store_direct {
+                let store = match (pass, kind) {
+                    (PassKind::Caustic, PhotonKind::Caustic) => true,
+                    (PassKind::Caustic, _) => false,
+                    (PassKind::Global { store_caustic }, PhotonKind::Caustic) => store_caustic,
+                    (PassKind::Global { .. }, PhotonKind::Direct) => settings.store_direct,
+                    (PassKind::Global { .. }, PhotonKind::Indirect) => true,
+                };
+                if store {
                     out.push(
                         Photon::new(sp.position, power, sp.facing_normal, -dir, kind),
                         hit.triangle,
                     );
+                }
+                if pass == PassKind::Caustic {
+                    return; // the caustic pass ends at the first diffuse surface
                 }
                 // Russian roulette on the largest channel keeps the photon power nearly constant.
                 let q = albedo.max_element().min(1.0);
