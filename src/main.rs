@@ -163,12 +163,27 @@ fn main() {
     let json = matches!(&cli.command, Command::Render(r) if r.progress == ProgressMode::Json);
     init_logging(cli.verbose);
     if let Err(e) = run(cli) {
+        let message = error_message(&e);
         if json {
-            emit_json(&serde_json::json!({"event": "error", "message": format!("{e:#}")}));
+            emit_json(&serde_json::json!({"event": "error", "message": message}));
         }
-        eprintln!("error: {e:#}");
+        eprintln!("error: {message}");
         std::process::exit(1);
     }
+}
+
+/// The error and its causes, leaving out a cause the message already quotes (the loader's and
+/// writer's errors print their I/O cause themselves; `{e:#}` would repeat it).
+fn error_message(e: &anyhow::Error) -> String {
+    let mut message = e.to_string();
+    for cause in e.chain().skip(1) {
+        let c = cause.to_string();
+        if !message.contains(&c) {
+            message.push_str(": ");
+            message.push_str(&c);
+        }
+    }
+    message
 }
 
 fn init_logging(verbose: u8) {

@@ -49,10 +49,12 @@ pub enum LoadError {
         path: PathBuf,
     },
     /// No triangles at all.
-    #[error("{path}: the scene has no triangles to render")]
+    #[error("{path}: the scene has no triangles to render ({degenerate} degenerate triangles skipped)")]
     NoGeometry {
         /// The file.
         path: PathBuf,
+        /// Zero-area triangles that were skipped.
+        degenerate: usize,
     },
 }
 
@@ -70,10 +72,25 @@ pub fn load(path: &Path) -> Result<Scene, LoadError> {
 
 /// Load with options.
 pub fn load_with(path: &Path, options: &LoadOptions) -> Result<Scene, LoadError> {
+    if path.is_dir() {
+        return Err(LoadError::Io {
+            path: path.to_path_buf(),
+            source: std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                "is a folder, not a .glb or .gltf file",
+            ),
+        });
+    }
     let bytes = std::fs::read(path).map_err(|source| LoadError::Io {
         path: path.to_path_buf(),
         source,
     })?;
+    if let Some(message) = truncation(&bytes) {
+        return Err(LoadError::Parse {
+            path: path.to_path_buf(),
+            message,
+        });
+    }
     // The checks below should make a panic impossible; this turns any that slips through in a
     // dependency into an error naming the file instead of a crash.
     let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| Loader::new(path, options).load(&bytes)));
@@ -90,6 +107,30 @@ pub fn load_with(path: &Path, options: &LoadOptions) -> Result<Scene, LoadError>
             ),
         }),
     }
+}
+
+/// An empty file, or a GLB shorter than its header says: the parser's own messages for these
+/// ("EOF while parsing", "could not completely read the object") do not say what happened.
+fn truncation(bytes: &[u8]) -> Option<String> {
+    if bytes.is_empty() {
+        return Some("the file is empty (0 bytes)".into());
+    }
+    if !bytes.starts_with(b"glTF") {
+        return None;
+    }
+    if bytes.len() < 12 {
+        return Some(format!(
+            "the file has {} bytes, less than the 12-byte GLB header: the file is truncated",
+            bytes.len()
+        ));
+    }
+    let declared = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize;
+    (declared > bytes.len()).then(|| {
+        format!(
+            "the GLB header declares {declared} bytes but the file has {}: the file is truncated",
+            bytes.len()
+        )
+    })
 }
 
 struct Loader<'a> {
@@ -191,6 +232,7 @@ impl<'a> Loader<'a> {
         if triangles.is_empty() {
             return Err(LoadError::NoGeometry {
                 path: self.path.to_path_buf(),
+                degenerate: self.report.degenerate_triangles,
             });
         }
         let mut bounds = Bounds::empty();
@@ -543,6 +585,7 @@ impl<'a> Loader<'a> {
             let world_p: Vec<Vec3> = positions.iter().map(|p| world.transform_point3(*p)).collect();
             let world_n: Option<Vec<Vec3>> =
                 normals.map(|ns| ns.iter().map(|v| (normal_matrix * *v).normalize_or_zero()).collect());
+            let degenerate_before = self.report.degenerate_triangles;
             for mut t in tris {
                 if flip {
                     t.swap(1, 2);
@@ -577,6 +620,12 @@ impl<'a> Loader<'a> {
                     uv,
                     material,
                 });
+            }
+            let degenerate = self.report.degenerate_triangles - degenerate_before;
+            if degenerate > 0 {
+                self.report.ignored.push(format!(
+                    "{element}: {degenerate} degenerate (zero-area) triangles skipped"
+                ));
             }
         }
         Ok(())
@@ -829,9 +878,11 @@ fn urlencoding_decode(s: &str) -> String {
     let mut out = Vec::with_capacity(bytes.len());
     let mut i = 0;
     while i < bytes.len() {
-        if bytes[i] == b'%' && i + 2 < bytes.len() + 0 && i + 2 <= bytes.len() - 1 {
-            if let Ok(v) = u8::from_str_radix(&s[i + 1..i + 3], 16) {
-                out.push(v);
+        // Hex digits are read from the bytes: slicing the str could split a UTF-8 character.
+        let hex = |b: u8| (b as char).to_digit(16);
+        if bytes[i] == b'%' && i + 2 < bytes.len() {
+            if let (Some(hi), Some(lo)) = (hex(bytes[i + 1]), hex(bytes[i + 2])) {
+                out.push((hi * 16 + lo) as u8);
                 i += 3;
                 continue;
             }
