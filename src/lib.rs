@@ -9,6 +9,7 @@
 #![warn(missing_docs)]
 
 pub mod accel;
+pub mod batch;
 pub mod bsdf;
 pub mod estimate;
 pub mod film;

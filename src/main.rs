@@ -4,7 +4,7 @@
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
 use photongrid::grid::GridQuantity;
-use photongrid::output::{self, AovSelection};
+use photongrid::output::{self, output_for, AovSelection};
 use photongrid::pipeline::{self, PhaseTimes};
 use photongrid::progress::{emit_json, Progress, ProgressMode};
 use photongrid::render::{DirectLighting, Method};
@@ -37,6 +37,8 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Render the jobs of a JOBS.toml: parallel, resumable, shardable, with a JSON report.
+    Batch(BatchArgs),
     /// Compare an image with a reference (same metrics as shared/tools/score.py).
     Compare {
         /// The rendered image (EXR).
@@ -158,6 +160,41 @@ struct RenderArgs {
     allow_external_uris: bool,
 }
 
+#[derive(Args, Debug)]
+struct BatchArgs {
+    /// The jobs file: [[job]] tables with scene, output, optional camera and render options,
+    /// and an optional [defaults] table (see README.md, "Batch jobs").
+    #[arg(value_name = "JOBS.toml")]
+    jobs_file: PathBuf,
+    /// Write the JSON report here (per unit: status, error, seconds, stats; and totals).
+    #[arg(long, value_name = "REPORT.json", required_unless_present = "list")]
+    report: Option<PathBuf>,
+    /// Run only shard I of N (0-based): the units whose index % N == I.
+    #[arg(long, value_name = "I/N")]
+    shard: Option<String>,
+    /// Run only these units (by index after expansion, as `--list` prints them); repeatable or comma-separated.
+    #[arg(long, value_name = "INDEX", value_delimiter = ',')]
+    only: Vec<usize>,
+    /// Jobs rendered at once, each in its own pool of threads/J threads.
+    #[arg(long, default_value_t = 1)]
+    jobs: usize,
+    /// Threads in all (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Print the expanded units as JSON lines on stdout and exit.
+    #[arg(long)]
+    list: bool,
+    /// Render even outputs whose sidecar says they are finished.
+    #[arg(long)]
+    force: bool,
+    /// Append one JSON line per unit event (start, done, skipped, failed) to this file.
+    #[arg(long, value_name = "JOURNAL.jsonl")]
+    journal: Option<PathBuf>,
+    /// No per-unit lines on stderr.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
 fn main() {
     let cli = Cli::parse();
     let json = matches!(&cli.command, Command::Render(r) if r.progress == ProgressMode::Json);
@@ -207,6 +244,7 @@ fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Render(args) => render(args),
         Command::Info { scene, json } => info(&scene, json),
+        Command::Batch(args) => batch(args),
         Command::Compare {
             image,
             reference,
@@ -243,36 +281,6 @@ fn settings_of(a: &RenderArgs) -> Settings {
         caustic_photons: a.caustic_photons,
         ..Settings::default()
     }
-}
-
-/// Output path for a camera: `{camera}` replaced, or the name appended when several cameras share one path.
-fn output_for(pattern: &Path, camera: &str, several: bool) -> PathBuf {
-    let s = pattern.to_string_lossy();
-    let safe: String = camera
-        .chars()
-        .map(|c| {
-            if c.is_alphanumeric() || c == '-' || c == '_' {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect();
-    if s.contains("{camera}") {
-        return PathBuf::from(s.replace("{camera}", &safe));
-    }
-    if !several {
-        return pattern.to_path_buf();
-    }
-    let stem = pattern
-        .file_stem()
-        .map(|s| s.to_string_lossy().to_string())
-        .unwrap_or_default();
-    let ext = pattern
-        .extension()
-        .map(|e| format!(".{}", e.to_string_lossy()))
-        .unwrap_or_default();
-    pattern.with_file_name(format!("{stem}_{safe}{ext}"))
 }
 
 fn check_writable(path: &Path) -> Result<()> {
@@ -417,6 +425,106 @@ fn render(a: RenderArgs) -> Result<()> {
             "cameras": camera_stats,
         });
         output::write_atomic(path, serde_json::to_string_pretty(&stats)?.as_bytes())?;
+    }
+    Ok(())
+}
+
+fn batch(a: BatchArgs) -> Result<()> {
+    use photongrid::batch;
+    let start = Instant::now();
+    if a.jobs == 0 {
+        bail!("--jobs must be at least 1");
+    }
+    if a.threads == Some(0) {
+        bail!("--threads must be at least 1");
+    }
+    let shard = a
+        .shard
+        .as_deref()
+        .map(batch::parse_shard)
+        .transpose()
+        .map_err(|e| anyhow::anyhow!(e))?;
+    let text =
+        std::fs::read_to_string(&a.jobs_file).with_context(|| format!("{}: cannot read", a.jobs_file.display()))?;
+    let base = a
+        .jobs_file
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let jobs = batch::parse_jobs(&text, base).map_err(|e| anyhow::anyhow!("{}: {e}", a.jobs_file.display()))?;
+    let mut units = batch::expand(&jobs);
+    let all = units.len();
+    if let Some(&i) = a.only.iter().find(|&&i| i >= all) {
+        bail!("--only {i}: {} has {all} units (0..{all})", a.jobs_file.display());
+    }
+    if let Some((i, n)) = shard {
+        units = batch::shard(units, i, n);
+    }
+    if !a.only.is_empty() {
+        units.retain(|u| a.only.contains(&u.index));
+    }
+    if a.list {
+        let mut out = std::io::stdout().lock();
+        for u in &units {
+            use std::io::Write;
+            writeln!(out, "{}", serde_json::to_string(u)?)?;
+        }
+        return Ok(());
+    }
+    let report_path = a.report.as_deref().context("--report is required")?;
+    check_writable(report_path)?;
+    let mut opts = batch::RunOptions {
+        jobs: a.jobs,
+        force: a.force,
+        journal: a.journal.clone(),
+        verbose: !a.quiet,
+        ..Default::default()
+    };
+    if let Some(t) = a.threads {
+        opts.threads = t;
+    }
+    let (jobs, threads) = opts.layout();
+    if jobs < a.jobs {
+        tracing::warn!(
+            "--jobs {} with {} threads: running {jobs} at once",
+            a.jobs,
+            opts.threads
+        );
+    }
+    let reports = batch::run(&units, &opts);
+    let run = serde_json::json!({
+        "shard": shard.map(|(i, n)| serde_json::json!({"index": i, "count": n})),
+        "only": if a.only.is_empty() { None } else { Some(&a.only) },
+        "units_in_file": all,
+        "jobs": jobs,
+        "threads_per_job": threads,
+        "force": a.force,
+    });
+    let doc = batch::report(&a.jobs_file, &reports, run, start.elapsed().as_secs_f64());
+    output::write_atomic(report_path, serde_json::to_string_pretty(&doc)?.as_bytes())?;
+    let t = &doc["totals"];
+    eprintln!(
+        "{}: {} units: {} done, {} skipped, {} failed in {:.2} s; report {}",
+        a.jobs_file.display(),
+        t["units"],
+        t["done"],
+        t["skipped"],
+        t["failed"],
+        start.elapsed().as_secs_f64(),
+        report_path.display()
+    );
+    let failed: Vec<_> = reports.iter().filter(|r| r.status == batch::Status::Failed).collect();
+    if !failed.is_empty() {
+        for r in &failed {
+            eprintln!(
+                "failed: unit {} (job {}{}): {}",
+                r.index,
+                r.job,
+                r.camera.as_deref().map(|c| format!(", camera {c}")).unwrap_or_default(),
+                r.error.as_deref().unwrap_or("")
+            );
+        }
+        bail!("{} of {} units failed", failed.len(), reports.len());
     }
     Ok(())
 }

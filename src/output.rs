@@ -63,6 +63,37 @@ impl AovSelection {
     }
 }
 
+/// Output path for a camera: `{camera}` replaced (by the name with characters other than
+/// letters, digits, `-` and `_` made `_`), or the name appended when several cameras share one path.
+pub fn output_for(pattern: &Path, camera: &str, several: bool) -> PathBuf {
+    let s = pattern.to_string_lossy();
+    let safe: String = camera
+        .chars()
+        .map(|c| {
+            if c.is_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    if s.contains("{camera}") {
+        return PathBuf::from(s.replace("{camera}", &safe));
+    }
+    if !several {
+        return pattern.to_path_buf();
+    }
+    let stem = pattern
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_default();
+    let ext = pattern
+        .extension()
+        .map(|e| format!(".{}", e.to_string_lossy()))
+        .unwrap_or_default();
+    pattern.with_file_name(format!("{stem}_{safe}{ext}"))
+}
+
 /// Write `bytes` to `path` atomically: a reader sees the old file or the whole new one.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), OutputError> {
     let io = |source| OutputError::Io {

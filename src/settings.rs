@@ -32,7 +32,9 @@ pub struct Settings {
     pub max_specular_depth: u32,
     /// Depth up to which both glass branches are followed from the camera.
     pub split_depth: u32,
-    /// Largest gather radius, as a fraction of the scene's bounding-box diagonal.
+    /// Largest gather radius, as a fraction of the scene's bounding-box diagonal (CLI and
+    /// jobs files: `max_radius`).
+    #[serde(alias = "max_radius")]
     pub max_radius_rel: f32,
     /// Radiance estimate: plain kNN, or the paper's grid-adaptive radius.
     pub method: Method,

@@ -1,0 +1,839 @@
+//! Batch rendering: a `JOBS.toml` of `[[job]]` tables is parsed ([`parse_jobs`]), expanded into
+//! units of one scene, one camera and one output ([`expand`]), and the units are rendered
+//! ([`run`]) in parallel, each finished output checked by a sidecar so a rerun skips it.
+//!
+//! A job table holds `scene` (relative to the TOML file, or absolute), `output` (likewise; a
+//! path or a pattern with `{scene}`, `{camera}` and `{job}`), optional `camera` (name, index,
+//! a list of them, or `"all"`, the default), optional `aovs`, and any field of [`Settings`]
+//! under its name (`photons`, `neighbours`, `spp`, ...). An optional `[defaults]` table is
+//! applied under every job. Settings are read by [`Settings`]' own serde code, so a new
+//! option needs no change here.
+//!
+//! Resume: after an EXR is written (atomically) a sidecar `<output>.done.json` records a key
+//! (hash of the scene file's bytes, the camera, the resolution, the settings and the version)
+//! and the EXR's length and hash. A unit is skipped only if its sidecar has the same key, the
+//! EXR has the recorded length and hash, and it reads back at the right size.
+
+use crate::output::{self, output_for, AovSelection};
+use crate::pipeline::{self, PhaseTimes};
+use crate::progress::Progress;
+use crate::scene::gltf::{load_with, LoadOptions};
+use crate::scene::Scene;
+use crate::settings::Settings;
+use serde::Serialize;
+use serde_json::{json, Value};
+use std::collections::{HashMap, VecDeque};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::time::Instant;
+
+/// Keys of a job table that are not render settings.
+pub const JOB_KEYS: [&str; 4] = ["scene", "output", "camera", "aovs"];
+
+/// One `[[job]]` table, resolved and checked.
+#[derive(Clone, Debug)]
+pub struct Job {
+    /// Position in the file, from 0.
+    pub index: usize,
+    /// Scene path (joined to the TOML file's folder when relative).
+    pub scene: PathBuf,
+    /// Output path or pattern (joined likewise).
+    pub output: String,
+    /// Camera keys; empty means all cameras.
+    pub cameras: Vec<String>,
+    /// Render settings (defaults, then `[defaults]`, then the job's keys).
+    pub settings: Settings,
+    /// Add the AOV layers to the EXR.
+    pub aovs: bool,
+}
+
+/// A job that could not be read.
+#[derive(Clone, Debug)]
+pub struct JobError {
+    /// Position in the file, from 0.
+    pub index: usize,
+    /// The scene, when the job named one.
+    pub scene: Option<PathBuf>,
+    /// What is wrong, naming the job.
+    pub message: String,
+}
+
+/// One scene, one camera, one output: what a farm task or a shard counts.
+#[derive(Clone, Debug, Serialize)]
+pub struct Unit {
+    /// Position after expansion, from 0 (stable: job order, then camera order).
+    pub index: usize,
+    /// The job it came from.
+    pub job: usize,
+    /// Scene path.
+    pub scene: PathBuf,
+    /// Camera name (none when the job failed before its cameras were known).
+    pub camera: Option<String>,
+    /// glTF camera index.
+    pub camera_index: Option<usize>,
+    /// Output EXR.
+    pub output: Option<PathBuf>,
+    /// Resolution.
+    pub width: Option<u32>,
+    /// Resolution.
+    pub height: Option<u32>,
+    /// Why the unit cannot run (bad job, missing scene, unknown camera...).
+    pub error: Option<String>,
+    /// Settings.
+    #[serde(skip)]
+    pub settings: Settings,
+    /// AOV layers.
+    #[serde(skip)]
+    pub aovs: bool,
+    /// What the output depends on; hashed into the sidecar's key.
+    #[serde(skip)]
+    pub key_source: Value,
+}
+
+impl Unit {
+    /// The resume key: a hash of everything the output depends on.
+    pub fn key(&self) -> String {
+        format!("{:016x}", fnv1a64(self.key_source.to_string().as_bytes()))
+    }
+}
+
+/// What happened to a unit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Status {
+    /// Rendered and written.
+    Done,
+    /// A checked output was already there.
+    Skipped,
+    /// Not rendered; see the error.
+    Failed,
+}
+
+/// One line of the report.
+#[derive(Clone, Debug, Serialize)]
+pub struct UnitReport {
+    /// Unit index.
+    pub index: usize,
+    /// Job index.
+    pub job: usize,
+    /// Scene path.
+    pub scene: PathBuf,
+    /// Camera name.
+    pub camera: Option<String>,
+    /// Output EXR.
+    pub output: Option<PathBuf>,
+    /// done, skipped or failed.
+    pub status: Status,
+    /// Why it failed.
+    pub error: Option<String>,
+    /// Seconds spent on this unit (a shared photon map's time is split between its units).
+    pub seconds: f64,
+    /// Phase seconds (`seconds`, of the shared preparation and this camera), photon counts,
+    /// resolution; for a skipped unit, `null`.
+    pub stats: Option<Value>,
+}
+
+impl UnitReport {
+    fn of(u: &Unit, status: Status, error: Option<String>, seconds: f64, stats: Option<Value>) -> Self {
+        UnitReport {
+            index: u.index,
+            job: u.job,
+            scene: u.scene.clone(),
+            camera: u.camera.clone(),
+            output: u.output.clone(),
+            status,
+            error,
+            seconds,
+            stats,
+        }
+    }
+}
+
+/// 64-bit FNV-1a: a small stable hash (not cryptographic) for resume checks.
+pub fn fnv1a64(bytes: &[u8]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        h ^= b as u64;
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
+}
+
+/// `I/N` with 0 ≤ I < N.
+pub fn parse_shard(s: &str) -> Result<(usize, usize), String> {
+    let err = || format!("--shard {s}: expected I/N with 0 <= I < N, e.g. 0/4");
+    let (i, n) = s.split_once('/').ok_or_else(err)?;
+    let (i, n): (usize, usize) = (
+        i.trim().parse().map_err(|_| err())?,
+        n.trim().parse().map_err(|_| err())?,
+    );
+    if n == 0 || i >= n {
+        return Err(err());
+    }
+    Ok((i, n))
+}
+
+fn normalize(t: &toml::Table) -> toml::Table {
+    t.iter().map(|(k, v)| (k.replace('-', "_"), v.clone())).collect()
+}
+
+/// Read the settings part of a (merged) table with [`Settings`]' serde code.
+fn settings_of(t: &toml::Table) -> Result<Settings, String> {
+    let rest: toml::Table = t
+        .iter()
+        .filter(|(k, _)| !JOB_KEYS.contains(&k.as_str()))
+        .map(|(k, v)| (k.clone(), v.clone()))
+        .collect();
+    let s: Settings = toml::Value::Table(rest)
+        .try_into()
+        .map_err(|e: toml::de::Error| e.to_string().trim().replace("unknown field", "unknown key"))?;
+    Ok(s)
+}
+
+/// Parse a JOBS.toml. The outer error is for the whole file (bad TOML, bad `[defaults]`); each
+/// job is read on its own, so one bad job does not stop the others.
+pub fn parse_jobs(text: &str, base: &Path) -> Result<Vec<Result<Job, JobError>>, String> {
+    let doc: toml::Table = text.parse().map_err(|e: toml::de::Error| e.to_string())?;
+    for k in doc.keys() {
+        if k != "job" && k != "defaults" {
+            return Err(format!(
+                "unknown top-level key `{k}`: a jobs file holds [[job]] tables and an optional [defaults] table"
+            ));
+        }
+    }
+    let defaults = match doc.get("defaults") {
+        None => toml::Table::new(),
+        Some(toml::Value::Table(t)) => normalize(t),
+        Some(_) => return Err("`defaults` must be a table: write [defaults]".into()),
+    };
+    settings_of(&defaults).map_err(|e| format!("[defaults]: {e}"))?;
+    let jobs = match doc.get("job") {
+        None => return Err("no jobs: add [[job]] tables with scene = \"...\" and output = \"...\"".into()),
+        Some(toml::Value::Array(a)) => a,
+        Some(_) => return Err("`job` must be an array of tables: write [[job]], not [job]".into()),
+    };
+    Ok(jobs
+        .iter()
+        .enumerate()
+        .map(|(index, v)| {
+            let mut merged = defaults.clone();
+            match v {
+                toml::Value::Table(t) => merged.extend(normalize(t)),
+                _ => {
+                    return Err(JobError {
+                        index,
+                        scene: None,
+                        message: format!("job {index}: not a table"),
+                    })
+                }
+            }
+            job_from_table(index, merged, base)
+        })
+        .collect())
+}
+
+fn job_from_table(index: usize, t: toml::Table, base: &Path) -> Result<Job, JobError> {
+    let scene = match t.get("scene") {
+        Some(toml::Value::String(s)) => Some(base.join(s)),
+        _ => None,
+    };
+    let fail = |message: String| {
+        let at = scene
+            .as_ref()
+            .map(|s| format!(" ({})", s.display()))
+            .unwrap_or_default();
+        JobError {
+            index,
+            scene: scene.clone(),
+            message: format!("job {index}{at}: {message}"),
+        }
+    };
+    let string = |key: &str| -> Result<Option<String>, JobError> {
+        match t.get(key) {
+            None => Ok(None),
+            Some(toml::Value::String(s)) => Ok(Some(s.clone())),
+            Some(v) => Err(fail(format!("`{key}` must be a string, not {}", v.type_str()))),
+        }
+    };
+    let scene_s = string("scene")?.ok_or_else(|| fail("missing `scene` (the .glb/.gltf to render)".into()))?;
+    let output = string("output")?
+        .ok_or_else(|| fail("missing `output` (an EXR path, or a pattern with {scene} and {camera})".into()))?;
+    let key = |v: &toml::Value| match v {
+        toml::Value::String(s) => Ok(s.clone()),
+        toml::Value::Integer(i) => Ok(i.to_string()),
+        v => Err(fail(format!(
+            "`camera` must be a name, an index or \"all\", not {}",
+            v.type_str()
+        ))),
+    };
+    let cameras = match t.get("camera") {
+        None => vec![],
+        Some(toml::Value::Array(a)) => a.iter().map(key).collect::<Result<Vec<_>, _>>()?,
+        Some(v) => vec![key(v)?],
+    };
+    let cameras = if cameras.iter().any(|c| c == "all") {
+        vec![]
+    } else {
+        cameras
+    };
+    let aovs = match t.get("aovs") {
+        None => false,
+        Some(toml::Value::Boolean(b)) => *b,
+        Some(v) => return Err(fail(format!("`aovs` must be true or false, not {}", v.type_str()))),
+    };
+    let settings = settings_of(&t).map_err(fail)?;
+    settings.validate().map_err(fail)?;
+    Ok(Job {
+        index,
+        scene: tidy(&base.join(scene_s)),
+        output: tidy(&base.join(output)).to_string_lossy().into_owned(),
+        cameras,
+        settings,
+        aovs,
+    })
+}
+
+/// `a/./b/../c` → `a/c`, without touching the file system (`..` at the start is kept).
+fn tidy(p: &Path) -> PathBuf {
+    use std::path::Component;
+    let mut out: Vec<Component> = Vec::new();
+    for c in p.components() {
+        match c {
+            Component::CurDir => {}
+            Component::ParentDir if matches!(out.last(), Some(Component::Normal(_))) => {
+                out.pop();
+            }
+            c => out.push(c),
+        }
+    }
+    if out.is_empty() {
+        return PathBuf::from(".");
+    }
+    out.iter().collect()
+}
+
+fn scene_stem(p: &Path) -> String {
+    p.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "scene".into())
+}
+
+/// Expand jobs into units in a stable order: job order, then camera order. A job that cannot
+/// be expanded (bad table, missing scene, unknown camera, clashing output) becomes one failed
+/// unit carrying its error, so it is reported and counted in exactly one shard.
+pub fn expand(jobs: &[Result<Job, JobError>]) -> Vec<Unit> {
+    let mut scenes: HashMap<PathBuf, Result<(Scene, Value), String>> = HashMap::new();
+    let mut units: Vec<Unit> = Vec::new();
+    let mut outputs: HashMap<PathBuf, (usize, usize)> = HashMap::new();
+    for job in jobs {
+        let job = match job {
+            Ok(j) => j,
+            Err(e) => {
+                units.push(failed_unit(units.len(), e.index, e.scene.clone(), e.message.clone()));
+                continue;
+            }
+        };
+        let fail = |units: &Vec<Unit>, m: String| {
+            failed_unit(
+                units.len(),
+                job.index,
+                Some(job.scene.clone()),
+                format!("job {} ({}): {m}", job.index, job.scene.display()),
+            )
+        };
+        let loaded = scenes
+            .entry(job.scene.clone())
+            .or_insert_with(|| load_for_expansion(&job.scene));
+        let (scene, file) = match loaded {
+            Ok(s) => (&s.0, &s.1),
+            Err(e) => {
+                units.push(fail(&units, e.clone()));
+                continue;
+            }
+        };
+        let cameras = match pipeline::select_cameras(scene, &job.cameras) {
+            Ok(c) => c,
+            Err(e) => {
+                units.push(fail(&units, e.to_string()));
+                continue;
+            }
+        };
+        let several = cameras.len() > 1;
+        let pattern = job
+            .output
+            .replace("{scene}", &scene_stem(&job.scene))
+            .replace("{job}", &job.index.to_string());
+        let mut mine = Vec::new();
+        let mut clash = None;
+        for c in &cameras {
+            let out = output_for(Path::new(&pattern), &c.name, several);
+            if let Some((u, j)) = outputs.get(&out) {
+                clash = Some(format!(
+                    "output {} is also the output of unit {u} (job {j}); use {{camera}} or {{scene}} in `output`",
+                    out.display()
+                ));
+                break;
+            }
+            if mine.iter().any(|(_, o)| o == &out) {
+                clash = Some(format!(
+                    "two cameras write {}; use {{camera}} in `output`",
+                    out.display()
+                ));
+                break;
+            }
+            mine.push((c, out));
+        }
+        if let Some(m) = clash {
+            units.push(fail(&units, m));
+            continue;
+        }
+        for (c, out) in mine {
+            let (w, h) = pipeline::resolution(c, &job.settings);
+            let index = units.len();
+            outputs.insert(out.clone(), (index, job.index));
+            units.push(Unit {
+                index,
+                job: job.index,
+                scene: job.scene.clone(),
+                camera: Some(c.name.clone()),
+                camera_index: Some(c.index),
+                output: Some(out),
+                width: Some(w),
+                height: Some(h),
+                error: None,
+                settings: job.settings.clone(),
+                aovs: job.aovs,
+                key_source: json!({
+                    "version": env!("CARGO_PKG_VERSION"),
+                    "scene_file": file,
+                    "camera": c.name, "camera_index": c.index,
+                    "width": w, "height": h,
+                    "settings": job.settings,
+                    "aovs": job.aovs,
+                }),
+            });
+        }
+    }
+    units
+}
+
+fn failed_unit(index: usize, job: usize, scene: Option<PathBuf>, error: String) -> Unit {
+    Unit {
+        index,
+        job,
+        scene: scene.unwrap_or_default(),
+        camera: None,
+        camera_index: None,
+        output: None,
+        width: None,
+        height: None,
+        error: Some(error),
+        settings: Settings::default(),
+        aovs: false,
+        key_source: Value::Null,
+    }
+}
+
+fn load_for_expansion(path: &Path) -> Result<(Scene, Value), String> {
+    let bytes = std::fs::read(path).map_err(|e| {
+        if e.kind() == std::io::ErrorKind::NotFound {
+            format!("scene file {} does not exist", path.display())
+        } else {
+            format!("{}: cannot read: {e}", path.display())
+        }
+    })?;
+    let file = json!({"bytes": bytes.len(), "fnv64": format!("{:016x}", fnv1a64(&bytes))});
+    drop(bytes);
+    let scene = load_with(path, &LoadOptions::default()).map_err(|e| e.to_string())?;
+    Ok((scene, file))
+}
+
+/// Keep the units of shard `i` of `n`: those whose index % n == i.
+pub fn shard(units: Vec<Unit>, i: usize, n: usize) -> Vec<Unit> {
+    units.into_iter().filter(|u| u.index % n == i).collect()
+}
+
+/// The sidecar that marks `output` as finished.
+pub fn sidecar_path(output: &Path) -> PathBuf {
+    let mut s = output.as_os_str().to_owned();
+    s.push(".done.json");
+    PathBuf::from(s)
+}
+
+/// Why `u`'s output cannot be trusted (so it must be rendered), or `Ok` if it is finished.
+pub fn check_done(u: &Unit) -> Result<(), String> {
+    let out = u.output.as_deref().ok_or("no output")?;
+    let side = sidecar_path(out);
+    let text = std::fs::read_to_string(&side).map_err(|_| "no sidecar".to_string())?;
+    let v: Value = serde_json::from_str(&text).map_err(|e| format!("{}: unreadable: {e}", side.display()))?;
+    if v["key"].as_str() != Some(u.key().as_str()) {
+        return Err("scene, camera or settings changed".into());
+    }
+    let bytes = std::fs::read(out).map_err(|e| format!("{}: {e}", out.display()))?;
+    if v["exr"]["bytes"].as_u64() != Some(bytes.len() as u64)
+        || v["exr"]["fnv64"].as_str() != Some(format!("{:016x}", fnv1a64(&bytes)).as_str())
+    {
+        return Err(format!(
+            "{} differs from the one recorded in its sidecar",
+            out.display()
+        ));
+    }
+    let img = output::read_exr_rgb(out).map_err(|e| e.to_string())?;
+    if (Some(img.width as u32), Some(img.height as u32)) != (u.width, u.height) {
+        return Err(format!("{} is {}×{}", out.display(), img.width, img.height));
+    }
+    Ok(())
+}
+
+/// How to run.
+#[derive(Clone, Debug)]
+pub struct RunOptions {
+    /// Groups rendered at once.
+    pub jobs: usize,
+    /// Threads in all (each of the `jobs` pools gets `threads / jobs`).
+    pub threads: usize,
+    /// Render even when a checked output exists.
+    pub force: bool,
+    /// Append one JSON line per unit event (start, done, skipped, failed) here.
+    pub journal: Option<PathBuf>,
+    /// Print one line per finished unit on stderr.
+    pub verbose: bool,
+}
+
+impl Default for RunOptions {
+    fn default() -> Self {
+        RunOptions {
+            jobs: 1,
+            threads: std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
+            force: false,
+            journal: None,
+            verbose: false,
+        }
+    }
+}
+
+impl RunOptions {
+    /// Concurrent jobs and threads per job, never more threads than `threads` in all.
+    pub fn layout(&self) -> (usize, usize) {
+        let threads = self.threads.max(1);
+        let jobs = self.jobs.clamp(1, threads);
+        (jobs, threads / jobs)
+    }
+}
+
+fn journal(opts: &RunOptions, event: &str, u: &Unit, extra: Value) {
+    let Some(path) = &opts.journal else { return };
+    let mut v = json!({
+        "event": event, "unit": u.index, "job": u.job, "output": u.output,
+        "pid": std::process::id(), "ppid": std::os::unix::process::parent_id(),
+        "time": std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0),
+    });
+    if let (Value::Object(m), Value::Object(e)) = (&mut v, extra) {
+        m.extend(e);
+    }
+    // One write of one line in append mode: lines from concurrent processes do not interleave.
+    let line = format!("{v}\n");
+    let r = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(path)
+        .and_then(|mut f| f.write_all(line.as_bytes()));
+    if let Err(e) = r {
+        tracing::warn!("{}: cannot append to the journal: {e}", path.display());
+    }
+}
+
+/// Render `units` (already sharded/filtered); returns one report per unit, in unit order.
+/// Units with the same scene and settings share one photon map.
+pub fn run(units: &[Unit], opts: &RunOptions) -> Vec<UnitReport> {
+    let (jobs, threads) = opts.layout();
+    let mut reports: Vec<UnitReport> = Vec::new();
+    let mut groups: Vec<Vec<&Unit>> = Vec::new();
+    let mut by_key: HashMap<(PathBuf, String), usize> = HashMap::new();
+    for u in units {
+        if let Some(e) = &u.error {
+            journal(opts, "failed", u, json!({"error": e}));
+            reports.push(UnitReport::of(u, Status::Failed, Some(e.clone()), 0.0, None));
+            continue;
+        }
+        let key = (u.scene.clone(), serde_json::to_string(&u.settings).unwrap_or_default());
+        let g = *by_key.entry(key).or_insert_with(|| {
+            groups.push(Vec::new());
+            groups.len() - 1
+        });
+        groups[g].push(u);
+    }
+    let queue = Mutex::new(groups.into_iter().collect::<VecDeque<_>>());
+    let results = Mutex::new(reports);
+    std::thread::scope(|s| {
+        for _ in 0..jobs {
+            s.spawn(|| {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build();
+                loop {
+                    let Some(group) = queue.lock().unwrap_or_else(|e| e.into_inner()).pop_front() else {
+                        break;
+                    };
+                    let r = match &pool {
+                        Ok(pool) => run_group(&group, pool, opts),
+                        Err(e) => group
+                            .iter()
+                            .map(|u| UnitReport::of(u, Status::Failed, Some(format!("thread pool: {e}")), 0.0, None))
+                            .collect(),
+                    };
+                    results.lock().unwrap_or_else(|e| e.into_inner()).extend(r);
+                }
+            });
+        }
+    });
+    let mut reports = results.into_inner().unwrap_or_else(|e| e.into_inner());
+    reports.sort_by_key(|r| r.index);
+    reports
+}
+
+fn run_group(group: &[&Unit], pool: &rayon::ThreadPool, opts: &RunOptions) -> Vec<UnitReport> {
+    let mut reports = Vec::new();
+    let mut todo = Vec::new();
+    for &u in group {
+        match (opts.force, check_done(u)) {
+            (false, Ok(())) => {
+                journal(opts, "skipped", u, json!({}));
+                if opts.verbose {
+                    eprintln!("skipped unit {}: {} is done", u.index, show(&u.output));
+                }
+                reports.push(UnitReport::of(u, Status::Skipped, None, 0.0, None));
+            }
+            (_, r) => {
+                if let (Err(why), true) = (r, u.output.as_ref().is_some_and(|o| o.exists())) {
+                    tracing::warn!("unit {}: rendering again: {why}", u.index);
+                }
+                todo.push(u);
+            }
+        }
+    }
+    if todo.is_empty() {
+        return reports;
+    }
+    for u in &todo {
+        journal(opts, "start", u, json!({}));
+    }
+    let start = Instant::now();
+    let rendered = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        pool.install(|| render_group(&todo, opts))
+    }));
+    let rendered = match rendered {
+        Ok(Ok(r)) => r,
+        Ok(Err(e)) => fail_all(&todo, e, start),
+        Err(p) => {
+            let m = p
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_else(|| "unknown panic".into());
+            fail_all(&todo, format!("internal error (panic): {m}"), start)
+        }
+    };
+    for r in &rendered {
+        let u = todo.iter().find(|u| u.index == r.index).expect("unit of this group");
+        match r.status {
+            Status::Done => journal(opts, "done", u, json!({"seconds": r.seconds})),
+            _ => journal(opts, "failed", u, json!({"error": r.error})),
+        }
+        if opts.verbose {
+            match r.status {
+                Status::Done => eprintln!("done unit {}: {} ({:.2} s)", u.index, show(&u.output), r.seconds),
+                _ => eprintln!("FAILED unit {}: {}", u.index, r.error.as_deref().unwrap_or("")),
+            }
+        }
+    }
+    reports.extend(rendered);
+    reports
+}
+
+fn show(p: &Option<PathBuf>) -> String {
+    p.as_ref().map(|p| p.display().to_string()).unwrap_or_default()
+}
+
+fn fail_all(units: &[&Unit], e: String, start: Instant) -> Vec<UnitReport> {
+    let s = start.elapsed().as_secs_f64() / units.len() as f64;
+    units
+        .iter()
+        .map(|u| UnitReport::of(u, Status::Failed, Some(e.clone()), s, None))
+        .collect()
+}
+
+/// Load, prepare once, render every camera of the group. An error here fails the whole group;
+/// an error writing one output fails that unit only.
+fn render_group(units: &[&Unit], _opts: &RunOptions) -> Result<Vec<UnitReport>, String> {
+    let first = units[0];
+    let settings = &first.settings;
+    let progress = Progress::quiet();
+    let mut times = PhaseTimes::default();
+    let t = Instant::now();
+    let scene = load_with(&first.scene, &LoadOptions::default()).map_err(|e| e.to_string())?;
+    times.load = t.elapsed().as_secs_f64();
+    let prepared = pipeline::prepare(&scene, settings, &progress, &mut times).map_err(|e| e.to_string())?;
+    let shared = times.load + times.bvh + times.photons + times.build;
+    let mut reports = Vec::new();
+    for &u in units {
+        let t = Instant::now();
+        let result = (|| -> Result<Value, String> {
+            let name = u.camera.as_deref().ok_or("no camera")?;
+            let camera = scene.camera(name)?;
+            let film = pipeline::render_camera(&scene, &prepared, camera, settings, &progress);
+            let render_s = t.elapsed().as_secs_f64();
+            let tw = Instant::now();
+            let out = u.output.as_deref().ok_or("no output")?;
+            if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+                std::fs::create_dir_all(dir)
+                    .map_err(|e| format!("{}: cannot create the folder: {e}", dir.display()))?;
+            }
+            let aovs = if u.aovs {
+                AovSelection::all()
+            } else {
+                AovSelection::default()
+            };
+            let bytes = output::encode_exr(&film, aovs).map_err(|m| format!("{}: EXR error: {m}", out.display()))?;
+            output::write_atomic(out, &bytes).map_err(|e| e.to_string())?;
+            let write_s = tw.elapsed().as_secs_f64();
+            let seconds = json!({
+                "load": times.load, "bvh": times.bvh, "photons": times.photons, "build": times.build,
+                "render": render_s, "write": write_s,
+            });
+            let stats = json!({
+                "seconds": seconds,
+                "photon_map_shared_by": units.len(),
+                "photons": prepared.photon_stats,
+                "width": film.width, "height": film.height,
+                "mean_rgb": film.mean().to_array(),
+                "nonfinite_pixels": film.nonfinite(),
+                "threads": rayon::current_num_threads(),
+            });
+            let side = json!({
+                "key": u.key(),
+                "key_source": u.key_source,
+                "exr": {"bytes": bytes.len(), "fnv64": format!("{:016x}", fnv1a64(&bytes))},
+                "unit": u.index, "job": u.job, "scene": u.scene, "camera": u.camera,
+                "written_at": std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0),
+                "stats": stats,
+            });
+            let side_bytes = serde_json::to_vec_pretty(&side).map_err(|e| e.to_string())?;
+            output::write_atomic(&sidecar_path(out), &side_bytes).map_err(|e| e.to_string())?;
+            Ok(stats)
+        })();
+        let own = t.elapsed().as_secs_f64() + shared / units.len() as f64;
+        reports.push(match result {
+            Ok(stats) => UnitReport::of(u, Status::Done, None, own, Some(stats)),
+            Err(e) => UnitReport::of(u, Status::Failed, Some(e), own, None),
+        });
+    }
+    Ok(reports)
+}
+
+/// Totals of a report: counts per status and seconds.
+pub fn totals(reports: &[UnitReport], wall_seconds: f64) -> Value {
+    let count = |s: Status| reports.iter().filter(|r| r.status == s).count();
+    json!({
+        "units": reports.len(),
+        "done": count(Status::Done),
+        "skipped": count(Status::Skipped),
+        "failed": count(Status::Failed),
+        "seconds": wall_seconds,
+        "unit_seconds": reports.iter().map(|r| r.seconds).sum::<f64>(),
+    })
+}
+
+/// The whole report document.
+pub fn report(jobs_file: &Path, reports: &[UnitReport], run: Value, wall_seconds: f64) -> Value {
+    json!({
+        "photongrid": env!("CARGO_PKG_VERSION"),
+        "jobs_file": jobs_file,
+        "run": run,
+        "units": reports,
+        "totals": totals(reports, wall_seconds),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tidy_paths() {
+        assert_eq!(tidy(Path::new("samples/../out/a.exr")), Path::new("out/a.exr"));
+        assert_eq!(tidy(Path::new("./a/./b")), Path::new("a/b"));
+        assert_eq!(tidy(Path::new("../a")), Path::new("../a"));
+        assert_eq!(tidy(Path::new("/x/../y")), Path::new("/y"));
+    }
+
+    #[test]
+    fn shard_parsing() {
+        assert_eq!(parse_shard("1/3"), Ok((1, 3)));
+        assert!(parse_shard("3/3").is_err());
+        assert!(parse_shard("0/0").is_err());
+        assert!(parse_shard("x").is_err());
+    }
+
+    #[test]
+    fn defaults_and_job_keys_merge_into_settings() {
+        let text = r#"
+            [defaults]
+            photons = 1000
+            spp = 2
+            [[job]]
+            scene = "a.glb"
+            output = "out/{scene}.exr"
+            spp = 3
+            light-samples = 2
+            max_radius = 0.1
+            [[job]]
+            scene = "b.glb"
+            output = "b.exr"
+            camera = [0, "Cam"]
+            [[job]]
+            scene = "c.glb"
+            output = "c.exr"
+            photon = 5
+        "#;
+        let jobs = parse_jobs(text, Path::new("/base")).unwrap();
+        let a = jobs[0].as_ref().unwrap();
+        assert_eq!(a.scene, Path::new("/base/a.glb"));
+        assert_eq!(a.output, "/base/out/{scene}.exr");
+        assert_eq!(
+            (a.settings.photons, a.settings.spp, a.settings.light_samples),
+            (1000, 3, 2)
+        );
+        assert_eq!(a.settings.max_radius_rel, 0.1);
+        assert!(a.cameras.is_empty());
+        let b = jobs[1].as_ref().unwrap();
+        assert_eq!(b.cameras, vec!["0".to_string(), "Cam".into()]);
+        assert_eq!(b.settings.spp, 2);
+        let e = jobs[2].as_ref().unwrap_err();
+        assert!(
+            e.message.contains("job 2") && e.message.contains("`photon`"),
+            "{}",
+            e.message
+        );
+    }
+
+    #[test]
+    fn whole_file_errors() {
+        assert!(parse_jobs("[job]\nscene='a'", Path::new(".")).is_err());
+        assert!(parse_jobs("jobs = 1", Path::new(".")).is_err());
+        let e = parse_jobs("[defaults]\nbogus = 1\n[[job]]\nscene='a'\noutput='b'", Path::new(".")).unwrap_err();
+        assert!(e.contains("[defaults]") && e.contains("bogus"), "{e}");
+    }
+
+    #[test]
+    fn layout_never_oversubscribes() {
+        let o = |jobs, threads| RunOptions {
+            jobs,
+            threads,
+            ..RunOptions::default()
+        };
+        assert_eq!(o(1, 2).layout(), (1, 2));
+        assert_eq!(o(2, 2).layout(), (2, 1));
+        assert_eq!(o(4, 2).layout(), (2, 1));
+        assert_eq!(o(3, 8).layout(), (3, 2));
+    }
+}
