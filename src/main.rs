@@ -3,7 +3,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
-use photongrid::grid::GridQuantity;
+use photongrid::grid::{GridMode, GridQuantity};
 use photongrid::output::{self, output_for, AovSelection};
 use photongrid::pipeline::{self, PhaseTimes};
 use photongrid::progress::{emit_json, Progress, ProgressMode};
@@ -107,6 +107,10 @@ struct RenderArgs {
     /// Radiance estimate: plain k nearest neighbours, or the paper's grid-adaptive radius.
     #[arg(long, value_enum, default_value_t = Settings::default().method)]
     method: Method,
+    /// Grids for the adaptive method: planes where there are planes and voxels where needed
+    /// (auto), planes only (the paper), voxels for everything, or none.
+    #[arg(long, value_enum, default_value_t = Settings::default().grid)]
+    grid: GridMode,
     /// Cells along the longer side of each plane's count grid.
     #[arg(long, default_value_t = Settings::default().grid_res)]
     grid_res: usize,
@@ -269,6 +273,7 @@ fn settings_of(a: &RenderArgs) -> Settings {
         max_specular_depth: a.max_specular_depth,
         max_radius_rel: a.max_radius,
         method: a.method,
+        grid: a.grid,
         grid_res: a.grid_res,
         wavelet: a.wavelet,
         threshold: a.threshold,
@@ -358,7 +363,7 @@ fn render(a: RenderArgs) -> Result<()> {
     }
 
     let prepared = pipeline::prepare(&scene, &settings, &progress, &mut times)?;
-    if let (Some(dir), Some(g)) = (&a.dump_grids, &prepared.grids) {
+    if let (Some(dir), Some(g)) = (&a.dump_grids, prepared.grids.as_ref().and_then(|g| g.planes.as_ref())) {
         std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
         for (i, (raw, filtered)) in g.raw.iter().zip(&g.filtered).enumerate() {
             output::write_field_exr(&dir.join(format!("plane{i:03}_counts.exr")), raw)?;
@@ -423,6 +428,9 @@ fn render(a: RenderArgs) -> Result<()> {
                 "bvh_bytes": prepared.accel.memory_bytes(),
             },
             "cameras": camera_stats,
+            "grids": prepared.grids.as_ref().map(|g| serde_json::json!({
+                "choice": g.choice, "memory_bytes": g.memory_bytes(),
+            })),
         });
         output::write_atomic(path, serde_json::to_string_pretty(&stats)?.as_bytes())?;
     }
@@ -571,6 +579,30 @@ fn info(path: &Path, json: bool) -> Result<()> {
         "  caustics possible (glass or mirror present): {}",
         if scene.has_specular() { "yes" } else { "no" }
     );
+    let set = photongrid::grid::PlaneGrids::detect(&scene.triangles, Settings::default().grid_res);
+    let on_plane = set
+        .plane_of_triangle
+        .iter()
+        .filter(|p| **p != photongrid::grid::planes::NO_PLANE)
+        .count();
+    println!(
+        "  planes (grids for --method adaptive): {} ({} of {} triangles; the rest use kNN or voxels)",
+        set.planes.len(),
+        on_plane,
+        scene.triangles.len()
+    );
+    for (i, p) in set.planes.iter().enumerate() {
+        println!(
+            "    - plane {i}: {:.3} × {:.3} m, normal {:.3?}, {} triangles, {}×{} cells of {:.2} mm²",
+            p.size_u,
+            p.size_v,
+            p.normal.to_array(),
+            p.triangles.len(),
+            p.res_u,
+            p.res_v,
+            p.cell_area() * 1e6
+        );
+    }
     Ok(())
 }
 

@@ -4,7 +4,7 @@
 use crate::accel::Accel;
 use crate::estimate::{IrradianceCache, PhotonMap};
 use crate::film::Film;
-use crate::grid::PlaneGrids;
+use crate::grid::Grids;
 use crate::photon::{trace_photons, PhotonStats, TraceSettings};
 use crate::photon::{Photon, PhotonKind};
 use crate::progress::Progress;
@@ -20,7 +20,7 @@ pub enum RenderError {
     #[error("invalid settings: {0}")]
     Settings(String),
     /// The photon count would not fit in memory.
-    #[error("{photons} photons need at least {needed_gib:.1} GiB but only {available_gib:.1} GiB is available; use --photons {suggest} or fewer")]
+    #[error("{photons} photons (with the caustic pass's) need at least {needed_gib:.1} GiB but only {available_gib:.1} GiB is available; use --photons {suggest} or fewer")]
     TooManyPhotons {
         /// Requested photons.
         photons: usize,
@@ -70,8 +70,8 @@ pub struct Prepared {
     pub map: PhotonMap,
     /// Photon counts.
     pub photon_stats: PhotonStats,
-    /// The plane grids (adaptive method only).
-    pub grids: Option<PlaneGrids>,
+    /// The grids (adaptive method only).
+    pub grids: Option<Grids>,
     /// Precomputed irradiance for final gathering.
     pub irradiance: Option<IrradianceCache>,
 }
@@ -96,12 +96,13 @@ pub fn peak_memory_bytes() -> Option<u64> {
 }
 
 /// Refuse photon counts that cannot fit, before spending minutes finding out.
-pub fn check_photon_memory(photons: usize) -> Result<(), RenderError> {
-    let needed = photons as f64 * MIN_BYTES_PER_PHOTON;
+pub fn check_photon_memory(photons: usize, caustic_photons: usize) -> Result<(), RenderError> {
+    let total = photons.saturating_add(caustic_photons);
+    let needed = total as f64 * MIN_BYTES_PER_PHOTON;
     let available = available_memory_bytes()
         .unwrap_or(f64::INFINITY)
         .min(u32::MAX as f64 * MIN_BYTES_PER_PHOTON);
-    if photons > u32::MAX as usize / 2 || needed > available {
+    if total > u32::MAX as usize / 2 || needed > available {
         let gib = (1u64 << 30) as f64;
         return Err(RenderError::TooManyPhotons {
             photons,
@@ -121,7 +122,7 @@ pub fn prepare(
     times: &mut PhaseTimes,
 ) -> Result<Prepared, RenderError> {
     settings.validate().map_err(RenderError::Settings)?;
-    check_photon_memory(settings.photons.saturating_add(settings.caustic_photons))?;
+    check_photon_memory(settings.photons, settings.caustic_photons)?;
 
     let max_radius = settings.max_radius_rel * scene.bounds.diagonal();
     let phase = progress.phase("bvh", 0);
@@ -192,11 +193,11 @@ pub fn prepare(
     let grids = (settings.method == Method::Adaptive).then(|| {
         let phase = progress.phase("grids", 0);
         let _s = tracing::info_span!("grids").entered();
-        let set = PlaneGrids::detect(&scene.triangles, settings.grid_res);
-        let mut g = PlaneGrids::count(set, &photons, &photon_triangles, settings.grid_quantity, |_| true);
-        g.filter(settings.wavelet(), settings.threshold(), settings.wavelet_levels);
+        let g = Grids::build(scene, &photons, &photon_triangles, settings);
         times.grids = phase.finish();
-        tracing::info!(planes = g.set.planes.len(), "plane grids");
+        for c in &g.choice {
+            tracing::info!("{c}");
+        }
         g
     });
     drop(photon_triangles);

@@ -2,7 +2,7 @@
 //! the benchmarks, so a new option is added once.
 
 use crate::grid::wavelet::{Threshold, Wavelet};
-use crate::grid::GridQuantity;
+use crate::grid::{GridMode, GridQuantity};
 use crate::render::{DirectLighting, Method};
 use serde::{Deserialize, Serialize};
 
@@ -38,6 +38,8 @@ pub struct Settings {
     pub max_radius_rel: f32,
     /// Radiance estimate: plain kNN, or the paper's grid-adaptive radius.
     pub method: Method,
+    /// Which grids the adaptive method uses (planes, voxels, both, none).
+    pub grid: GridMode,
     /// Cells along the longer side of each plane's grid (the paper: 128).
     pub grid_res: usize,
     /// Wavelet for the count textures.
@@ -137,6 +139,7 @@ impl Default for Settings {
             split_depth: 2,
             max_radius_rel: 0.05,
             method: Method::Knn,
+            grid: GridMode::Auto,
             grid_res: 128,
             wavelet: WaveletChoice::Haar,
             threshold: ThresholdChoice::Universal,

@@ -5,7 +5,7 @@ use crate::accel::Accel;
 use crate::bsdf;
 use crate::estimate::{density_radiance, Gather, IrradianceCache, PhotonMap};
 use crate::film::{Aov, Film};
-use crate::grid::{assumed_radius, blended_radius, PlaneGrids};
+use crate::grid::{blended_radius, Assumed, Grids};
 use crate::photon::neighbours::KnnBuffer;
 use crate::sampling::{self, stream, Rng};
 use crate::scene::{Camera, Scene, Surface};
@@ -70,7 +70,7 @@ struct Tracer<'a> {
     scene: &'a Scene,
     accel: &'a Accel,
     map: &'a PhotonMap,
-    grids: Option<&'a PlaneGrids>,
+    grids: Option<&'a Grids>,
     irradiance: Option<&'a IrradianceCache>,
     settings: &'a RenderSettings,
     knn: KnnBuffer,
@@ -81,7 +81,7 @@ pub fn render(
     scene: &Scene,
     accel: &Accel,
     map: &PhotonMap,
-    grids: Option<&PlaneGrids>,
+    grids: Option<&Grids>,
     irradiance: Option<&IrradianceCache>,
     camera: &Camera,
     settings: &RenderSettings,
@@ -265,14 +265,23 @@ impl Tracer<'_> {
         if self.settings.method == Method::Knn {
             return gk;
         }
-        let Some((count, cell_area)) = self.grids.and_then(|g| g.count_at(sp.triangle, sp.position)) else {
-            return gk; // not on a plane: plain kNN
+        let Some(grids) = self.grids else { return gk };
+        let r_a = match grids.assumed(
+            sp.triangle,
+            sp.position,
+            sp.geometric_normal,
+            k,
+            self.settings.shadow_count,
+        ) {
+            Assumed::Radius(r) => r,
+            // Shadows, dark corners, surfaces no grid covers: the real kNN radius.
+            Assumed::Shadow | Assumed::Uncovered => return gk,
         };
-        if count < self.settings.shadow_count || gk.count < k {
-            return gk; // shadow fallback: the assumed radius is unreliable here
+        if gk.count < k {
+            return gk; // fewer than k photons within the largest radius: nothing to blend with
         }
         let r_k = gk.r2.sqrt();
-        let r = blended_radius(assumed_radius(k, cell_area, count), r_k, self.settings.alpha).min(self.map.max_radius);
+        let r = blended_radius(r_a, r_k, self.settings.alpha).min(self.map.max_radius);
         if r <= r_k {
             let items = self.map.grid().items();
             let r2 = r * r;
