@@ -422,6 +422,7 @@ fn render(a: RenderArgs) -> Result<()> {
             "threads": rayon::current_num_threads(),
             "seconds": times,
             "photons": prepared.photon_stats,
+            "cpu_seconds": pipeline::cpu_seconds(),
             "memory": {
                 "peak_bytes": pipeline::peak_memory_bytes(),
                 "photon_map_bytes": prepared.map.memory_bytes(),

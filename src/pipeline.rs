@@ -95,6 +95,18 @@ pub fn peak_memory_bytes() -> Option<u64> {
     Some(kb * 1024)
 }
 
+/// CPU seconds (user + system, all threads) this process has used so far (Linux), if known.
+/// Less sensitive than wall time to other work on a shared machine.
+pub fn cpu_seconds() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which may contain spaces) start after the last ')'.
+    let rest = &s[s.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let utime: f64 = f.get(11)?.parse().ok()?;
+    let stime: f64 = f.get(12)?.parse().ok()?;
+    Some((utime + stime) / 100.0) // USER_HZ is 100 on Linux
+}
+
 /// Refuse photon counts that cannot fit, before spending minutes finding out.
 pub fn check_photon_memory(photons: usize, caustic_photons: usize) -> Result<(), RenderError> {
     let total = photons.saturating_add(caustic_photons);
