@@ -430,7 +430,14 @@ fn render(a: RenderArgs) -> Result<()> {
             },
             "cameras": camera_stats,
             "grids": prepared.grids.as_ref().map(|g| serde_json::json!({
-                "choice": g.choice, "memory_bytes": g.memory_bytes(),
+                "choice": g.choice,
+                "memory_bytes": g.memory_bytes(),
+                // Per plane: does the wavelet step change the photon total (the paper's
+                // "brightening")? mean_after/mean_before should stay 1.
+                "planes": g.planes.as_ref().map(|p| p.reports.iter().zip(&p.set.planes).map(|(r, pl)| serde_json::json!({
+                    "cells": [pl.res_u, pl.res_v], "mean_before": r.mean_before, "mean_after": r.mean_after,
+                    "sigma": r.sigma, "kept_fraction": r.kept_fraction,
+                })).collect::<Vec<_>>()),
             })),
         });
         output::write_atomic(path, serde_json::to_string_pretty(&stats)?.as_bytes())?;

@@ -138,7 +138,7 @@ impl Default for Settings {
             max_specular_depth: 12,
             split_depth: 2,
             max_radius_rel: 0.05,
-            method: Method::Knn,
+            method: Method::Adaptive,
             grid: GridMode::Auto,
             grid_res: 128,
             wavelet: WaveletChoice::Haar,
@@ -149,7 +149,7 @@ impl Default for Settings {
             shadow_count: 2.0,
             grid_quantity: GridQuantity::Count,
             caustic_photons: 1_000_000,
-            gather: 0,
+            gather: 8,
             gather_neighbours: 64,
             gather_stride: 4,
         }
