@@ -121,14 +121,20 @@ pub fn oct_decode(e: Vec2) -> Vec3 {
     Vec3::new(x, y, z).normalize_or_zero()
 }
 
-/// Ward's shared-exponent RGBE with rounding (relative error ≤ 0.2 % on the largest channel).
+/// Ward's shared-exponent RGBE with rounding (error ≤ half a step of 2^e/256: relative error
+/// ≤ 0.4 % on the largest channel, whose mantissa is in [128, 256)).
 pub fn rgbe_encode(c: Rgb) -> [u8; 4] {
     let c = c.max(Rgb::ZERO);
     let m = c.max_element();
     if !(m > 1e-38) || !m.is_finite() {
         return [0; 4];
     }
-    let e = m.log2().floor() as i32 + 1; // m / 2^e in [0.5, 1)
+    let mut e = m.log2().floor() as i32 + 1; // m / 2^e in [0.5, 1)
+    if (m * 256.0 * (2.0f32).powi(-e)).round() >= 256.0 {
+        // Just below a power of two the largest channel rounds up to 256: it takes the next
+        // exponent (clamping it to 255 would lose up to a whole step).
+        e += 1;
+    }
     let scale = (256.0f32).powi(1) * (2.0f32).powi(-e);
     let enc = |v: f32| ((v * scale).round() as u32).min(255) as u8;
     let r = [enc(c.x), enc(c.y), enc(c.z)];
@@ -161,9 +167,18 @@ mod tests {
             assert!(ph.incoming().dot(d) > 0.999, "direction");
             let q = ph.power();
             let m = p.max_element();
-            assert!((q - p).abs().max_element() <= m / 256.0 * 0.51 + 1e-12, "{p} {q}");
+            // Each channel is rounded to the nearest step of 2^e/256, e being the smallest
+            // exponent whose 256 steps hold the largest channel (so a step is ≤ m/128 + ε).
+            let e = rgbe_encode(p)[3] as i32 - 128;
+            let step = 2f32.powi(e) / 256.0;
+            assert!(m < 255.5 * step && m >= 127.5 * step, "{p}: exponent {e}");
+            assert!((q - p).abs().max_element() <= 0.5 * step * (1.0 + 1e-5), "{p} {q}");
             assert_eq!(ph.kind(), PhotonKind::Caustic);
         }
+        // Just below a power of two: rounds up to the power of two, not down by a step.
+        let below = 1.0 - 1e-4;
+        let q = rgbe_decode(rgbe_encode(Rgb::new(below, 0.5, 0.0)));
+        assert!((q.x - below).abs() < 1e-3, "{q}");
     }
 
     #[test]
