@@ -55,6 +55,58 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Error against time: render methods × photon counts × scenes × seeds against references;
+    /// write bench.json, SVG charts and table.md.
+    Bench(BenchArgs),
+}
+
+#[derive(Args, Debug)]
+struct BenchArgs {
+    /// Folder with <scene>.glb and refs/<scene>_cam<i>.exr (+ optional .specmask.exr).
+    #[arg(default_value = "../shared/scenes")]
+    dir: PathBuf,
+    /// Output folder: bench.json, error_vs_time_<scene>_cam<i>.svg, time_vs_photons.svg, table.md.
+    #[arg(short, long, default_value = "out/bench")]
+    out: PathBuf,
+    /// Matrix preset; the options below override its parts.
+    #[arg(long, value_enum, default_value_t = photongrid::bench::Preset::Small)]
+    preset: photongrid::bench::Preset,
+    /// Methods, comma-separated: knn, knn-k500, adaptive, single-map-knn, single-map-adaptive, gather8.
+    #[arg(long, value_delimiter = ',')]
+    methods: Vec<String>,
+    /// Photon counts, comma-separated (e.g. 250000,1000000,4000000).
+    #[arg(long, value_delimiter = ',')]
+    photons: Vec<usize>,
+    /// Number of seeds (0, 1, ... N-1).
+    #[arg(long)]
+    seeds: Option<u64>,
+    /// Scenes (file stems), comma-separated. Default: every scene with a reference.
+    #[arg(long, value_delimiter = ',')]
+    scenes: Vec<String>,
+    /// Image width (must divide the references' width; the references are box-filtered down).
+    #[arg(long)]
+    width: Option<u32>,
+    /// Image height (must divide the references' height).
+    #[arg(long)]
+    height: Option<u32>,
+    /// Camera rays per pixel (default: the render default).
+    #[arg(long)]
+    spp: Option<u32>,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Keep the runs already in OUT/bench.json and skip them.
+    #[arg(long)]
+    resume: bool,
+    /// Replace an existing OUT/bench.json.
+    #[arg(long, conflicts_with = "resume")]
+    overwrite: bool,
+    /// Only rewrite the charts and table.md from OUT/bench.json; render nothing.
+    #[arg(long)]
+    report_only: bool,
+    /// No per-run lines on stderr.
+    #[arg(short, long)]
+    quiet: bool,
 }
 
 #[derive(Args, Debug)]
@@ -256,7 +308,77 @@ fn run(cli: Cli) -> Result<()> {
             block,
             json,
         } => compare(&image, &reference, mask.as_deref(), block, json),
+        Command::Bench(args) => bench(args),
     }
+}
+
+fn bench(a: BenchArgs) -> Result<()> {
+    use photongrid::bench;
+    if a.report_only {
+        let file = bench::BenchFile::read(&a.out.join("bench.json"))?;
+        for p in bench::write_reports(&file, &a.out)? {
+            println!("{}", p.display());
+        }
+        return Ok(());
+    }
+    if let Some(t) = a.threads {
+        if t == 0 {
+            bail!("--threads must be at least 1");
+        }
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build_global()
+            .context("setting up the thread pool")?;
+    }
+    let scenes = bench::discover(&a.dir, &a.scenes)?
+        .into_iter()
+        .map(|s| s.name)
+        .collect();
+    let mut matrix = bench::Matrix::preset(a.preset, scenes);
+    if !a.methods.is_empty() {
+        matrix.methods = a.methods.clone();
+    }
+    if !a.photons.is_empty() {
+        matrix.budgets = a.photons.iter().map(|&p| bench::Budget::Photons(p)).collect();
+    }
+    if let Some(n) = a.seeds {
+        matrix.seeds = (0..n).collect();
+    }
+    matrix.width = a.width.unwrap_or(matrix.width);
+    matrix.height = a.height.unwrap_or(matrix.height);
+    matrix.spp = a.spp.or(matrix.spp);
+    let command = std::env::args()
+        .map(|s| {
+            if s.is_empty() || s.contains(|c: char| c.is_whitespace() || "'\"$\\".contains(c)) {
+                format!("'{}'", s.replace('\'', "'\\''"))
+            } else {
+                s
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(" ");
+    let opts = bench::BenchOptions {
+        dir: a.dir.clone(),
+        out: a.out.clone(),
+        matrix,
+        resume: a.resume,
+        overwrite: a.overwrite,
+        command,
+    };
+    let quiet = a.quiet;
+    let summary = bench::run(&opts, &mut |line| {
+        if !quiet {
+            eprintln!("{line}");
+        }
+    })?;
+    eprintln!(
+        "bench: {} runs rendered, {} skipped, {:.1} s",
+        summary.ran, summary.skipped, summary.seconds
+    );
+    for p in &summary.outputs {
+        println!("{}", p.display());
+    }
+    Ok(())
 }
 
 fn settings_of(a: &RenderArgs) -> Settings {
