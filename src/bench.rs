@@ -50,38 +50,65 @@ pub struct MethodPreset {
 pub static METHODS: &[MethodPreset] = &[
     MethodPreset {
         name: "knn",
-        description: "default settings: kNN estimate (k = 100), shadow rays for direct light",
-        apply: |_| {},
+        description: "classic photon mapping (Jensen): kNN (k = 100), shadow rays, map shown directly",
+        apply: |s| classic(s, Method::Knn),
     },
     MethodPreset {
         name: "knn-k500",
-        description: "kNN with k = 500",
-        apply: |s| s.neighbours = 500,
+        description: "classic with k = 500",
+        apply: |s| {
+            classic(s, Method::Knn);
+            s.neighbours = 500;
+        },
     },
     MethodPreset {
         name: "adaptive",
-        description: "the paper's grid-adaptive radius, shadow rays for direct light",
-        apply: |s| s.method = Method::Adaptive,
+        description: "classic with the paper's plane-grid adaptive radius",
+        apply: |s| classic(s, Method::Adaptive),
     },
     MethodPreset {
         name: "single-map-knn",
         description: "one photon map for all light, direct included (kNN)",
-        apply: |s| s.direct = DirectLighting::Photons,
+        apply: |s| {
+            classic(s, Method::Knn);
+            s.direct = DirectLighting::Photons;
+        },
     },
     MethodPreset {
         name: "single-map-adaptive",
-        description: "the paper's setup: one photon map, grid-adaptive radius",
+        description: "the paper's setup: one photon map, plane-grid adaptive radius",
         apply: |s| {
+            classic(s, Method::Adaptive);
             s.direct = DirectLighting::Photons;
-            s.method = Method::Adaptive;
         },
     },
     MethodPreset {
         name: "gather8",
-        description: "final gathering, 8 rays per camera sample",
-        apply: |s| s.gather = 8,
+        description: "classic kNN plus final gathering, 8 rays per camera sample",
+        apply: |s| {
+            classic(s, Method::Knn);
+            s.gather = 8;
+        },
+    },
+    MethodPreset {
+        name: "default-knn",
+        description: "the default pipeline (caustic pass, final gathering) with a plain kNN radius",
+        apply: |s| s.method = Method::Knn,
+    },
+    MethodPreset {
+        name: "default",
+        description: "the default settings: caustic pass, final gathering, adaptive radius with auto grids",
+        apply: |_| {},
     },
 ];
+
+/// The classic pipeline of the paper's era: no caustic pass, no final gathering, planes only.
+fn classic(s: &mut Settings, method: Method) {
+    s.method = method;
+    s.gather = 0;
+    s.caustic_photons = 0;
+    s.grid = crate::grid::GridMode::Planes;
+}
 
 /// The preset called `name`.
 pub fn method(name: &str) -> Result<&'static MethodPreset> {
@@ -176,7 +203,7 @@ impl Matrix {
     pub fn preset(preset: Preset, scenes: Vec<String>) -> Matrix {
         match preset {
             Preset::Small => Matrix {
-                methods: vec!["knn".into(), "adaptive".into()],
+                methods: vec!["knn".into(), "adaptive".into(), "default".into()],
                 budgets: vec![Budget::Photons(250_000), Budget::Photons(1_000_000)],
                 scenes,
                 seeds: vec![0, 1],

@@ -721,6 +721,11 @@ fn info(path: &Path, json: bool) -> Result<()> {
         on_plane,
         scene.triangles.len()
     );
+    let grids = photongrid::grid::Grids::build(&scene, &[], &[], &Settings::default());
+    println!("  grids chosen by --grid auto (the default):");
+    for c in &grids.choice {
+        println!("    - {c}");
+    }
     for (i, p) in set.planes.iter().enumerate() {
         println!(
             "    - plane {i}: {:.3} × {:.3} m, normal {:.3?}, {} triangles, {}×{} cells of {:.2} mm²",

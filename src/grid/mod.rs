@@ -109,7 +109,13 @@ impl Grids {
             let tris: Vec<[Vec3; 3]> = served.iter().map(|&t| scene.triangles[t].p).collect();
             let area: f32 = served.iter().map(|&t| scene.triangles[t].area()).sum();
             let share = area / total_area;
-            let n = (photons.len() as f32 * share) as usize;
+            // With no photons yet (`photongrid info`), size for the photons the settings ask for.
+            let expected = if photons.is_empty() {
+                settings.photons
+            } else {
+                photons.len()
+            };
+            let n = (expected as f32 * share) as usize;
             let size = VoxelGrid::suggest_voxel_size(n.max(1), settings.neighbours, area, scene.bounds.diagonal());
             let mut v = VoxelGrid::from_triangles(&tris, size);
             let items: Vec<(Vec3, Vec3, f32)> = photons
@@ -140,6 +146,11 @@ impl Grids {
             on_plane,
             choice,
         }
+    }
+
+    /// True if `triangle` is served by a plane grid.
+    pub fn on_plane(&self, triangle: u32) -> bool {
+        self.on_plane.get(triangle as usize).copied().unwrap_or(false)
     }
 
     /// The assumed radius for `k` neighbours at `p` on `triangle` (geometric front normal
