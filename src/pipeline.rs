@@ -134,7 +134,13 @@ pub fn prepare(
     times: &mut PhaseTimes,
 ) -> Result<Prepared, RenderError> {
     settings.validate().map_err(RenderError::Settings)?;
-    check_photon_memory(settings.photons, settings.caustic_photons)?;
+    // The caustic pass only runs when the scene has a mirror or glass.
+    let caustic_photons = if scene.has_specular() {
+        settings.caustic_photons
+    } else {
+        0
+    };
+    check_photon_memory(settings.photons, caustic_photons)?;
 
     let max_radius = settings.max_radius_rel * scene.bounds.diagonal();
     let phase = progress.phase("bvh", 0);

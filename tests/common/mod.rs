@@ -4,6 +4,8 @@
 //! files; [`Gltf::json`] gives the document for further hand edits.
 #![allow(dead_code)]
 
+pub mod harness;
+
 use serde_json::{json, Map, Value};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
