@@ -5,5 +5,5 @@ pub mod planes;
 pub mod radius;
 pub mod wavelet;
 
-pub use radius::{assumed_radius, blended_radius, GridQuantity, PlaneGrids};
+pub use radius::{assumed_radius, blended_radius, progressive_neighbours, GridQuantity, PlaneGrids};
 pub mod voxels;

@@ -229,6 +229,7 @@ impl SpecularTargets {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::Rgb;
 
     #[test]
     fn cone_mixture_is_unbiased() {
