@@ -430,11 +430,11 @@ pub fn render_passes(
         .collect();
     let mut grids = None;
     let mut photon_stats = PhotonStats::default();
-    let (mut pass_seconds, mut longest, mut map_bytes, mut checkpoints) = (Vec::new(), 0.0f64, 0, 0);
+    let (mut pass_seconds, mut last, mut map_bytes, mut checkpoints) = (Vec::new(), 0.0f64, 0, 0);
     let mut last_checkpoint = Instant::now();
     let mut done = 0u32;
     let stop = loop {
-        if let Err(stop) = budget.next(done, start.elapsed().as_secs_f64(), longest) {
+        if let Err(stop) = budget.next(done, start.elapsed().as_secs_f64(), last) {
             break stop;
         }
         let t = Instant::now();
@@ -455,11 +455,11 @@ pub fn render_passes(
         drop(photons);
         let seconds = t.elapsed().as_secs_f64();
         pass_seconds.push(seconds);
-        longest = longest.max(seconds);
+        last = seconds;
         done += 1;
         tracing::info!(pass = done, seconds = format!("{seconds:.3}"), "pass done");
         if let Some(cp) = checkpoint.as_mut() {
-            let more = budget.next(done, start.elapsed().as_secs_f64(), longest).is_ok();
+            let more = budget.next(done, start.elapsed().as_secs_f64(), last).is_ok();
             if more && last_checkpoint.elapsed().as_secs_f64() >= cp.every {
                 let tw = Instant::now();
                 let films: Vec<Film> = accs.iter().map(Accumulator::film).collect();

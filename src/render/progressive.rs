@@ -120,12 +120,13 @@ pub struct Budget {
 
 impl Budget {
     /// Whether to start another pass after `done` passes, `elapsed` seconds into the budget,
-    /// when the longest pass so far took `longest_pass` seconds. The first pass always runs. A
-    /// pass is started only if it is expected to end within the budget; the longest pass so
-    /// far is the estimate, which is the first pass unless the machine slowed down (the first
-    /// one also pays for one-off work: plane detection, SPPM radii), so the budget is rarely
-    /// overrun and at worst ends one pass early.
-    pub fn next(&self, done: u32, elapsed: f64, longest_pass: f64) -> Result<(), Stop> {
+    /// when the last pass took `last_pass` seconds. The first pass always runs. A pass is
+    /// started only if it is expected to end within the budget, the estimate being the previous
+    /// pass: after the first pass that is the first pass (which also pays one-off work: plane
+    /// detection, SPPM's initial kNN radii, so it errs on the safe side); later it follows the
+    /// actual cost per pass (SPPM's passes get cheaper as radii shrink) and the machine's load.
+    /// A pass slower than the one before (load rising) overruns the budget by the difference.
+    pub fn next(&self, done: u32, elapsed: f64, last_pass: f64) -> Result<(), Stop> {
         if done == 0 {
             return Ok(());
         }
@@ -134,7 +135,7 @@ impl Budget {
             return Err(Stop::Passes);
         }
         match self.time {
-            Some(t) if elapsed + longest_pass > t => Err(Stop::Time),
+            Some(t) if elapsed + last_pass > t => Err(Stop::Time),
             _ => Ok(()),
         }
     }
