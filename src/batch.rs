@@ -662,7 +662,8 @@ fn fail_all(units: &[&Unit], e: String, start: Instant) -> Vec<UnitReport> {
         .collect()
 }
 
-/// Load, prepare once, render every camera of the group. An error here fails the whole group;
+/// Load once and run the passes for every camera of the group together (each pass's photons
+/// serve all of them). An error here fails the whole group;
 /// an error writing one output fails that unit only.
 fn render_group(units: &[&Unit], _opts: &RunOptions) -> Result<Vec<UnitReport>, String> {
     let first = units[0];
@@ -672,17 +673,31 @@ fn render_group(units: &[&Unit], _opts: &RunOptions) -> Result<Vec<UnitReport>, 
     let t = Instant::now();
     let scene = load_with(&first.scene, &LoadOptions::default()).map_err(|e| e.to_string())?;
     times.load = t.elapsed().as_secs_f64();
-    let prepared = pipeline::prepare(&scene, settings, &progress, &mut times).map_err(|e| e.to_string())?;
-    let shared = times.load + times.bvh + times.photons + times.build;
+    // Units whose camera is missing fail alone; the others share every pass's photons.
     let mut reports = Vec::new();
+    let mut ok: Vec<(&Unit, &crate::scene::Camera)> = Vec::new();
     for &u in units {
-        let t = Instant::now();
-        let result = (|| -> Result<Value, String> {
-            let name = u.camera.as_deref().ok_or("no camera")?;
-            let camera = scene.camera(name)?;
-            let film = pipeline::render_camera(&scene, &prepared, camera, settings, &progress);
-            let render_s = t.elapsed().as_secs_f64();
-            let tw = Instant::now();
+        match u
+            .camera
+            .as_deref()
+            .ok_or_else(|| "no camera".to_string())
+            .and_then(|n| scene.camera(n))
+        {
+            Ok(c) => ok.push((u, c)),
+            Err(e) => reports.push(UnitReport::of(u, Status::Failed, Some(e), 0.0, None)),
+        }
+    }
+    if ok.is_empty() {
+        return Ok(reports);
+    }
+    let cameras: Vec<&crate::scene::Camera> = ok.iter().map(|(_, c)| *c).collect();
+    let result = pipeline::render_passes(&scene, &cameras, settings, t, &progress, &mut times, None)
+        .map_err(|e| e.to_string())?;
+    // Time before the writes (load, photons, all passes) is split between the units.
+    let shared = t.elapsed().as_secs_f64();
+    for ((u, _), film) in ok.iter().zip(&result.films) {
+        let tw = Instant::now();
+        let result_unit = (|| -> Result<Value, String> {
             let out = u.output.as_deref().ok_or("no output")?;
             if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
                 std::fs::create_dir_all(dir)
@@ -693,17 +708,18 @@ fn render_group(units: &[&Unit], _opts: &RunOptions) -> Result<Vec<UnitReport>, 
             } else {
                 AovSelection::default()
             };
-            let bytes = output::encode_exr(&film, aovs).map_err(|m| format!("{}: EXR error: {m}", out.display()))?;
+            let bytes = output::encode_exr(film, aovs).map_err(|m| format!("{}: EXR error: {m}", out.display()))?;
             output::write_atomic(out, &bytes).map_err(|e| e.to_string())?;
             let write_s = tw.elapsed().as_secs_f64();
             let seconds = json!({
                 "load": times.load, "bvh": times.bvh, "photons": times.photons, "build": times.build,
-                "render": render_s, "write": write_s,
+                "render": times.render, "write": write_s,
             });
             let stats = json!({
                 "seconds": seconds,
-                "photon_map_shared_by": units.len(),
-                "photons": prepared.photon_stats,
+                "photon_map_shared_by": ok.len(),
+                "photons": result.photon_stats,
+                "passes": {"count": result.passes, "stopped_by": result.stop, "seconds": result.pass_seconds},
                 "width": film.width, "height": film.height,
                 "mean_rgb": film.mean().to_array(),
                 "nonfinite_pixels": film.nonfinite(),
@@ -721,8 +737,8 @@ fn render_group(units: &[&Unit], _opts: &RunOptions) -> Result<Vec<UnitReport>, 
             output::write_atomic(&sidecar_path(out), &side_bytes).map_err(|e| e.to_string())?;
             Ok(stats)
         })();
-        let own = t.elapsed().as_secs_f64() + shared / units.len() as f64;
-        reports.push(match result {
+        let own = tw.elapsed().as_secs_f64() + shared / ok.len() as f64;
+        reports.push(match result_unit {
             Ok(stats) => UnitReport::of(u, Status::Done, None, own, Some(stats)),
             Err(e) => UnitReport::of(u, Status::Failed, Some(e), own, None),
         });

@@ -3,6 +3,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
+use photongrid::film::Film;
 use photongrid::grid::{GridMode, GridQuantity};
 use photongrid::output::{self, output_for, AovSelection};
 use photongrid::pipeline::{self, PhaseTimes};
@@ -193,6 +194,19 @@ struct RenderArgs {
     /// Final-gather rays per camera sample (0: show the photon map directly, as the paper).
     #[arg(long, default_value_t = Settings::default().gather)]
     gather: u32,
+    /// Progressive rendering: passes of new photons (--photons each) and new camera samples
+    /// (--spp each), averaged. With --time, at most this many.
+    #[arg(long, value_name = "P")]
+    passes: Option<u32>,
+    /// Progressive rendering with a time budget: add passes while the next one is expected to
+    /// end within this wall time, counted from the start (at least one pass runs). Seconds, or
+    /// with a unit: 90s, 2.5m, 1h. The pass count then depends on the machine; --stats reports it.
+    #[arg(long, visible_alias = "time-budget", value_name = "SECONDS", value_parser = parse_seconds)]
+    time: Option<f64>,
+    /// Write the image so far to the output (atomically) every this many seconds while passes
+    /// run, so that a killed render loses little (0: after every pass).
+    #[arg(long, value_name = "SECONDS", value_parser = parse_seconds_or_zero)]
+    checkpoint: Option<f64>,
     /// Write each plane's count texture before and after the wavelet step (EXR) into this folder.
     #[arg(long, value_name = "DIR")]
     dump_grids: Option<PathBuf>,
@@ -406,7 +420,34 @@ fn settings_of(a: &RenderArgs) -> Settings {
         grid_quantity: a.grid_quantity,
         gather: a.gather,
         caustic_photons: a.caustic_photons,
+        passes: a.passes,
+        time: a.time,
         ..Settings::default()
+    }
+}
+
+/// Seconds from "90", "90s", "2.5m" or "1h"; must be positive.
+fn parse_seconds(v: &str) -> Result<f64, String> {
+    let s = parse_seconds_or_zero(v)?;
+    if s > 0.0 {
+        Ok(s)
+    } else {
+        Err("must be more than 0 seconds".into())
+    }
+}
+
+/// As [`parse_seconds`], 0 allowed.
+fn parse_seconds_or_zero(v: &str) -> Result<f64, String> {
+    let t = v.trim();
+    let (num, unit) = match t.char_indices().last() {
+        Some((i, 's')) => (&t[..i], 1.0),
+        Some((i, 'm')) => (&t[..i], 60.0),
+        Some((i, 'h')) => (&t[..i], 3600.0),
+        _ => (t, 1.0),
+    };
+    match num.trim().parse::<f64>() {
+        Ok(x) if x >= 0.0 && x.is_finite() => Ok(x * unit),
+        _ => Err(format!("`{v}` is not a duration: use seconds (30, 30s) or 2.5m, 1h")),
     }
 }
 
@@ -484,8 +525,27 @@ fn render(a: RenderArgs) -> Result<()> {
         check_writable(s)?;
     }
 
-    let prepared = pipeline::prepare(&scene, &settings, &progress, &mut times)?;
-    if let (Some(dir), Some(g)) = (&a.dump_grids, prepared.grids.as_ref().and_then(|g| g.planes.as_ref())) {
+    let aovs = if a.aovs {
+        AovSelection::all()
+    } else {
+        AovSelection::default()
+    };
+    let json_progress = a.progress == ProgressMode::Json;
+    let mut write_checkpoint = |films: &[Film], passes: u32| -> Result<(), String> {
+        for (film, (out, _)) in films.iter().zip(&outputs) {
+            output::write_exr(out, film, aovs).map_err(|e| e.to_string())?;
+            if json_progress {
+                emit_json(&serde_json::json!({"event": "checkpoint", "path": out, "passes": passes}));
+            }
+        }
+        Ok(())
+    };
+    let checkpoint = a.checkpoint.map(|every| pipeline::Checkpoint {
+        every,
+        write: &mut write_checkpoint,
+    });
+    let result = pipeline::render_passes(&scene, &cameras, &settings, start, &progress, &mut times, checkpoint)?;
+    if let (Some(dir), Some(g)) = (&a.dump_grids, result.grids.as_ref().and_then(|g| g.planes.as_ref())) {
         std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
         for (i, (raw, filtered)) in g.raw.iter().zip(&g.filtered).enumerate() {
             output::write_field_exr(&dir.join(format!("plane{i:03}_counts.exr")), raw)?;
@@ -493,20 +553,11 @@ fn render(a: RenderArgs) -> Result<()> {
         }
     }
     let mut camera_stats = Vec::new();
-    for (camera, (out, png)) in cameras.iter().zip(&outputs) {
+    for ((camera, (out, png)), film) in cameras.iter().zip(&outputs).zip(&result.films) {
         let t = Instant::now();
-        let film = pipeline::render_camera(&scene, &prepared, camera, &settings, &progress);
-        let render_s = t.elapsed().as_secs_f64();
-        times.render += render_s;
-        let t = Instant::now();
-        let aovs = if a.aovs {
-            AovSelection::all()
-        } else {
-            AovSelection::default()
-        };
-        output::write_exr(out, &film, aovs)?;
+        output::write_exr(out, film, aovs)?;
         if let Some(p) = png {
-            output::write_png(p, &film, a.exposure)?;
+            output::write_png(p, film, a.exposure)?;
         }
         times.write += t.elapsed().as_secs_f64();
         let nonfinite = film.nonfinite();
@@ -515,7 +566,7 @@ fn render(a: RenderArgs) -> Result<()> {
         }
         camera_stats.push(serde_json::json!({
             "camera": camera.name, "index": camera.index, "output": out, "png": png,
-            "width": film.width, "height": film.height, "render_seconds": render_s,
+            "width": film.width, "height": film.height,
             "mean_rgb": film.mean().to_array(), "nonfinite_pixels": nonfinite,
         }));
         if a.progress == ProgressMode::Json {
@@ -525,8 +576,10 @@ fn render(a: RenderArgs) -> Result<()> {
     times.total = start.elapsed().as_secs_f64();
     if a.progress != ProgressMode::Quiet {
         eprintln!(
-            "{}: load {:.2} s · bvh {:.2} s · photons {:.2} s · build {:.2} s · render {:.2} s · write {:.2} s · total {:.2} s",
+            "{}: {} pass{} · load {:.2} s · bvh {:.2} s · photons {:.2} s · build {:.2} s · render {:.2} s · write {:.2} s · total {:.2} s",
             a.scene.display(),
+            result.passes,
+            if result.passes == 1 { "" } else { "es" },
             times.load,
             times.bvh,
             times.photons,
@@ -543,15 +596,21 @@ fn render(a: RenderArgs) -> Result<()> {
             "settings": settings,
             "threads": rayon::current_num_threads(),
             "seconds": times,
-            "photons": prepared.photon_stats,
+            "photons": result.photon_stats,
+            "passes": {
+                "count": result.passes,
+                "stopped_by": result.stop,
+                "seconds": result.pass_seconds,
+                "checkpoints": result.checkpoints,
+            },
             "cpu_seconds": pipeline::cpu_seconds(),
             "memory": {
                 "peak_bytes": pipeline::peak_memory_bytes(),
-                "photon_map_bytes": prepared.map.memory_bytes(),
-                "bvh_bytes": prepared.accel.memory_bytes(),
+                "photon_map_bytes": result.photon_map_bytes,
+                "bvh_bytes": result.bvh_bytes,
             },
             "cameras": camera_stats,
-            "grids": prepared.grids.as_ref().map(|g| serde_json::json!({
+            "grids": result.grids.as_ref().map(|g| serde_json::json!({
                 "choice": g.choice,
                 "memory_bytes": g.memory_bytes(),
                 // Per plane: does the wavelet step change the photon total (the paper's

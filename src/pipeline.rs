@@ -8,10 +8,13 @@ use crate::grid::Grids;
 use crate::photon::{trace_photons, PhotonStats, TraceSettings};
 use crate::photon::{Photon, PhotonKind};
 use crate::progress::Progress;
-use crate::render::{self, DirectLighting, Method, RenderSettings};
+use crate::render::progressive::{Accumulator, Budget, Stop};
+use crate::render::{DirectLighting, Method, RenderSettings};
+use crate::sampling::pass_seed;
 use crate::scene::{Camera, Scene};
 use crate::settings::Settings;
 use serde::Serialize;
+use std::time::Instant;
 
 /// Why a render could not run.
 #[derive(Debug, thiserror::Error)]
@@ -20,10 +23,12 @@ pub enum RenderError {
     #[error("invalid settings: {0}")]
     Settings(String),
     /// The photon count would not fit in memory.
-    #[error("{photons} photons (with the caustic pass's) need at least {needed_gib:.1} GiB but only {available_gib:.1} GiB is available; use --photons {suggest} or fewer")]
+    #[error("{photons} photons (plus {caustic} caustic-pass paths) need at least {needed_gib:.1} GiB but only {available_gib:.1} GiB is available; use --photons {suggest} or fewer")]
     TooManyPhotons {
         /// Requested photons.
         photons: usize,
+        /// Requested caustic-pass paths.
+        caustic: usize,
         /// Lower bound of the memory needed.
         needed_gib: f64,
         /// Memory available.
@@ -37,6 +42,9 @@ pub enum RenderError {
     /// The requested camera does not exist.
     #[error("{0}")]
     UnknownCamera(String),
+    /// Writing a checkpoint image failed.
+    #[error("checkpoint: {0}")]
+    Checkpoint(String),
 }
 
 /// Seconds spent in each phase.
@@ -107,9 +115,10 @@ pub fn cpu_seconds() -> Option<f64> {
     Some((utime + stime) / 100.0) // USER_HZ is 100 on Linux
 }
 
-/// Refuse photon counts that cannot fit, before spending minutes finding out.
-pub fn check_photon_memory(photons: usize, caustic_photons: usize) -> Result<(), RenderError> {
-    let total = photons.saturating_add(caustic_photons);
+/// Refuse photon counts (global paths plus caustic-pass paths) that cannot fit, before
+/// spending minutes finding out.
+pub fn check_photon_memory(photons: usize, caustic: usize) -> Result<(), RenderError> {
+    let total = photons.saturating_add(caustic);
     let needed = total as f64 * MIN_BYTES_PER_PHOTON;
     let available = available_memory_bytes()
         .unwrap_or(f64::INFINITY)
@@ -118,15 +127,19 @@ pub fn check_photon_memory(photons: usize, caustic_photons: usize) -> Result<(),
         let gib = (1u64 << 30) as f64;
         return Err(RenderError::TooManyPhotons {
             photons,
+            caustic,
             needed_gib: needed / gib,
             available_gib: available / gib,
-            suggest: ((available / MIN_BYTES_PER_PHOTON) as usize / 4).min(u32::MAX as usize / 2),
+            suggest: ((available / MIN_BYTES_PER_PHOTON) as usize / 4)
+                .min(u32::MAX as usize / 2)
+                .saturating_sub(caustic)
+                .max(1),
         });
     }
     Ok(())
 }
 
-/// Build the BVH, trace photons and index them.
+/// Build the BVH, trace photons and index them (one pass: the photons of pass 0).
 pub fn prepare(
     scene: &Scene,
     settings: &Settings,
@@ -141,30 +154,65 @@ pub fn prepare(
         0
     };
     check_photon_memory(settings.photons, caustic_photons)?;
+    let accel = build_accel(scene, progress, times);
+    let mut grids = None;
+    let pass = trace_pass(scene, &accel, settings, 0, &mut grids, progress, times);
+    Ok(Prepared {
+        accel,
+        map: pass.map,
+        photon_stats: pass.stats,
+        grids,
+        irradiance: pass.irradiance,
+    })
+}
 
-    let max_radius = settings.max_radius_rel * scene.bounds.diagonal();
+fn build_accel(scene: &Scene, progress: &Progress, times: &mut PhaseTimes) -> Accel {
     let phase = progress.phase("bvh", 0);
     let accel = {
         let _s = tracing::info_span!("bvh", triangles = scene.triangles.len()).entered();
         Accel::build(&scene.triangles)
     };
-    times.bvh = phase.finish();
+    times.bvh += phase.finish();
+    accel
+}
 
+/// The photons of one pass, reduced to the kinds the camera pass shows and indexed.
+struct PassPhotons {
+    map: PhotonMap,
+    stats: PhotonStats,
+    irradiance: Option<IrradianceCache>,
+}
+
+/// Trace pass `pass`'s photons (seed [`pass_seed`]) and index them. For the adaptive method
+/// their plane counts are added to `grids` (created at pass 0), which is then refiltered: the
+/// textures hold every pass's photons so far. Phase times are added to `times`.
+#[allow(clippy::too_many_arguments)]
+fn trace_pass(
+    scene: &Scene,
+    accel: &Accel,
+    settings: &Settings,
+    pass: u32,
+    grids: &mut Option<Grids>,
+    progress: &Progress,
+    times: &mut PhaseTimes,
+) -> PassPhotons {
+    let max_radius = settings.max_radius_rel * scene.bounds.diagonal();
     let trace = TraceSettings {
         photons: settings.photons,
         max_depth: settings.max_photon_depth,
         store_direct: settings.direct == DirectLighting::Photons || settings.gather > 0,
-        seed: settings.seed,
+        seed: pass_seed(settings.seed, pass),
         record_triangles: settings.method == Method::Adaptive,
         caustic_photons: settings.caustic_photons,
     };
     let phase = progress.phase("photons", settings.photons as u64);
     let (photons, photon_triangles, photon_stats) = {
-        let _s = tracing::info_span!("photons", n = settings.photons).entered();
-        trace_photons(scene, &accel, &trace, &|n| phase.inc(n as u64))
+        let _s = tracing::info_span!("photons", n = settings.photons, pass).entered();
+        trace_photons(scene, accel, &trace, &|n| phase.inc(n as u64))
     };
-    times.photons = phase.finish();
+    times.photons += phase.finish();
     tracing::info!(
+        pass,
         stored = photon_stats.stored,
         caustic = photon_stats.caustic,
         indirect = photon_stats.indirect,
@@ -189,7 +237,7 @@ pub fn prepare(
             settings.gather_stride,
             scene.surface_area(),
         );
-        times.irradiance = phase.finish();
+        times.irradiance += phase.finish();
         cache
     });
     let direct_photons = settings.direct == DirectLighting::Photons;
@@ -208,16 +256,21 @@ pub fn prepare(
             .unzip()
     };
 
-    let grids = (settings.method == Method::Adaptive).then(|| {
+    if settings.method == Method::Adaptive {
         let phase = progress.phase("grids", 0);
-        let _s = tracing::info_span!("grids").entered();
-        let g = Grids::build(scene, &photons, &photon_triangles, settings);
-        times.grids = phase.finish();
-        for c in &g.choice {
-            tracing::info!("{c}");
+        let _s = tracing::info_span!("grids", pass).entered();
+        match grids.as_mut() {
+            Some(g) => g.add(scene, &photons, &photon_triangles, settings),
+            None => {
+                let g = Grids::build(scene, &photons, &photon_triangles, settings);
+                for c in &g.choice {
+                    tracing::info!("{c}");
+                }
+                *grids = Some(g);
+            }
         }
-        g
-    });
+        times.grids += phase.finish();
+    }
     drop(photon_triangles);
 
     let phase = progress.phase("build", 0);
@@ -225,14 +278,12 @@ pub fn prepare(
         let _s = tracing::info_span!("build", photons = photons.len()).entered();
         PhotonMap::build(photons, settings.neighbours, scene.surface_area(), max_radius)
     };
-    times.build = phase.finish();
-    Ok(Prepared {
-        accel,
+    times.build += phase.finish();
+    PassPhotons {
         map,
-        photon_stats,
-        grids,
+        stats: photon_stats,
         irradiance,
-    })
+    }
 }
 
 /// The resolution a camera renders at under `settings`.
@@ -246,16 +297,10 @@ pub fn resolution(camera: &Camera, settings: &Settings) -> (u32, u32) {
     }
 }
 
-/// Render one camera with prepared data.
-pub fn render_camera(
-    scene: &Scene,
-    prepared: &Prepared,
-    camera: &Camera,
-    settings: &Settings,
-    progress: &Progress,
-) -> Film {
+/// The camera pass's settings for `camera` in pass `pass`.
+fn render_settings(camera: &Camera, settings: &Settings, pass: u32) -> RenderSettings {
     let (width, height) = resolution(camera, settings);
-    let rs = RenderSettings {
+    RenderSettings {
         width,
         height,
         spp: settings.spp,
@@ -264,28 +309,191 @@ pub fn render_camera(
         light_samples: settings.light_samples,
         max_specular_depth: settings.max_specular_depth,
         split_depth: settings.split_depth,
-        seed: settings.seed,
+        seed: pass_seed(settings.seed, pass),
+        pass,
         method: settings.method,
         alpha: settings.alpha,
         shadow_count: settings.shadow_count,
         gather: settings.gather,
-    };
-    let phase = progress.phase("render", height as u64);
-    let film = {
-        let _s = tracing::info_span!("render", camera = camera.name.as_str(), width, height).entered();
-        render::render(
+    }
+}
+
+/// The photon data a camera pass reads.
+struct PassInputs<'a> {
+    pass: u32,
+    map: &'a PhotonMap,
+    grids: Option<&'a Grids>,
+    irradiance: Option<&'a IrradianceCache>,
+}
+
+/// Add pass `input.pass` of `camera` to `acc`.
+fn render_pass(
+    scene: &Scene,
+    accel: &Accel,
+    input: &PassInputs<'_>,
+    camera: &Camera,
+    settings: &Settings,
+    acc: &mut Accumulator,
+    progress: &Progress,
+) {
+    let rs = render_settings(camera, settings, input.pass);
+    let phase = progress.phase("render", rs.height as u64);
+    {
+        let _s = tracing::info_span!(
+            "render",
+            camera = camera.name.as_str(),
+            width = rs.width,
+            height = rs.height,
+            pass = input.pass
+        )
+        .entered();
+        acc.add_pass(
             scene,
-            &prepared.accel,
-            &prepared.map,
-            prepared.grids.as_ref(),
-            prepared.irradiance.as_ref(),
+            accel,
+            input.map,
+            input.grids,
+            input.irradiance,
             camera,
             &rs,
             &|n| phase.inc(n as u64),
-        )
-    };
+        );
+    }
     phase.finish();
-    film
+}
+
+/// Render one camera with prepared data (one pass).
+pub fn render_camera(
+    scene: &Scene,
+    prepared: &Prepared,
+    camera: &Camera,
+    settings: &Settings,
+    progress: &Progress,
+) -> Film {
+    let (w, h) = resolution(camera, settings);
+    let mut acc = Accumulator::new(settings.method, w, h, settings.spp);
+    let input = PassInputs {
+        pass: 0,
+        map: &prepared.map,
+        grids: prepared.grids.as_ref(),
+        irradiance: prepared.irradiance.as_ref(),
+    };
+    render_pass(scene, &prepared.accel, &input, camera, settings, &mut acc, progress);
+    acc.film()
+}
+
+/// Writes the images so far while passes run (`--checkpoint`).
+pub struct Checkpoint<'a> {
+    /// Seconds between writes.
+    pub every: f64,
+    /// Write the films (one per camera, in order) after `passes` passes.
+    pub write: &'a mut dyn FnMut(&[Film], u32) -> Result<(), String>,
+}
+
+/// What a progressive render produced.
+pub struct Passes {
+    /// One image per camera, in the order given.
+    pub films: Vec<Film>,
+    /// Passes that ran.
+    pub passes: u32,
+    /// Seconds of each pass (photons and every camera).
+    pub pass_seconds: Vec<f64>,
+    /// Why the passes stopped.
+    pub stop: Stop,
+    /// Photon counts summed over passes.
+    pub photon_stats: PhotonStats,
+    /// The accumulated, filtered plane grids (adaptive method).
+    pub grids: Option<Grids>,
+    /// Checkpoints written.
+    pub checkpoints: u32,
+    /// Memory of the largest pass's photon map.
+    pub photon_map_bytes: usize,
+    /// Memory of the BVH.
+    pub bvh_bytes: usize,
+}
+
+/// Render `cameras` progressively: passes of `settings.photons` new photons (seed
+/// [`pass_seed`] of the pass) and `settings.spp` new samples per pixel, accumulated per camera,
+/// until `settings.passes` passes ran or the next pass would end after `settings.time`
+/// seconds counted from `start` ([`Budget`]); neither given: one pass, the plain render. The
+/// same seed and pass count give the same images whatever the thread count. Each pass's
+/// photons serve every camera, then are dropped. `checkpoint` writes the images so far every
+/// `every` seconds, except after the last pass (the caller writes the final images).
+pub fn render_passes(
+    scene: &Scene,
+    cameras: &[&Camera],
+    settings: &Settings,
+    start: Instant,
+    progress: &Progress,
+    times: &mut PhaseTimes,
+    mut checkpoint: Option<Checkpoint<'_>>,
+) -> Result<Passes, RenderError> {
+    settings.validate().map_err(RenderError::Settings)?;
+    check_photon_memory(settings.photons, settings.caustic_photons)?;
+    let accel = build_accel(scene, progress, times);
+    let budget = Budget {
+        passes: settings.passes,
+        time: settings.time,
+    };
+    let mut accs: Vec<Accumulator> = cameras
+        .iter()
+        .map(|c| {
+            let (w, h) = resolution(c, settings);
+            Accumulator::new(settings.method, w, h, settings.spp)
+        })
+        .collect();
+    let mut grids = None;
+    let mut photon_stats = PhotonStats::default();
+    let (mut pass_seconds, mut last, mut map_bytes, mut checkpoints) = (Vec::new(), 0.0f64, 0, 0);
+    let mut last_checkpoint = Instant::now();
+    let mut done = 0u32;
+    let stop = loop {
+        if let Err(stop) = budget.next(done, start.elapsed().as_secs_f64(), last) {
+            break stop;
+        }
+        let t = Instant::now();
+        let photons = trace_pass(scene, &accel, settings, done, &mut grids, progress, times);
+        photon_stats.add(&photons.stats);
+        map_bytes = map_bytes.max(photons.map.memory_bytes());
+        let tr = Instant::now();
+        let input = PassInputs {
+            pass: done,
+            map: &photons.map,
+            grids: grids.as_ref(),
+            irradiance: photons.irradiance.as_ref(),
+        };
+        for (camera, acc) in cameras.iter().zip(&mut accs) {
+            render_pass(scene, &accel, &input, camera, settings, acc, progress);
+        }
+        times.render += tr.elapsed().as_secs_f64();
+        drop(photons);
+        let seconds = t.elapsed().as_secs_f64();
+        pass_seconds.push(seconds);
+        last = seconds;
+        done += 1;
+        tracing::info!(pass = done, seconds = format!("{seconds:.3}"), "pass done");
+        if let Some(cp) = checkpoint.as_mut() {
+            let more = budget.next(done, start.elapsed().as_secs_f64(), last).is_ok();
+            if more && last_checkpoint.elapsed().as_secs_f64() >= cp.every {
+                let tw = Instant::now();
+                let films: Vec<Film> = accs.iter().map(Accumulator::film).collect();
+                (cp.write)(&films, done).map_err(RenderError::Checkpoint)?;
+                times.write += tw.elapsed().as_secs_f64();
+                checkpoints += 1;
+                last_checkpoint = Instant::now();
+            }
+        }
+    };
+    Ok(Passes {
+        films: accs.iter().map(Accumulator::film).collect(),
+        passes: done,
+        pass_seconds,
+        stop,
+        photon_stats,
+        grids,
+        checkpoints,
+        photon_map_bytes: map_bytes,
+        bvh_bytes: accel.memory_bytes(),
+    })
 }
 
 /// Pick cameras by name or index; "all" (or an empty list) means every camera.

@@ -58,6 +58,16 @@ impl Rng {
     }
 }
 
+/// The seed of progressive pass `pass` (0-based): pass 0 keeps `seed`, so a one-pass render is
+/// the plain render; later passes get unrelated streams for photons, strata and camera samples.
+pub fn pass_seed(seed: u64, pass: u32) -> u64 {
+    if pass == 0 {
+        seed
+    } else {
+        mix64(seed ^ mix64(0x5050_4153_5300_0000 ^ pass as u64))
+    }
+}
+
 /// Stream keys, one per purpose.
 pub mod stream {
     /// Photon paths.

@@ -65,6 +65,15 @@ pub struct Settings {
     pub gather_neighbours: usize,
     /// Every how many photons an irradiance point is precomputed.
     pub gather_stride: usize,
+    /// Progressive rendering: at most this many passes, each tracing `photons` new photons and
+    /// adding `spp` camera samples per pixel (none and no `time`: one pass).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub passes: Option<u32>,
+    /// Progressive rendering: wall-time budget in seconds; passes are added while the next one
+    /// is expected to finish within it (at least one pass runs). Makes the image depend on the
+    /// machine's speed; the stats report the passes that ran.
+    #[serde(skip_serializing_if = "Option::is_none", alias = "time_budget")]
+    pub time: Option<f64>,
 }
 
 /// Wavelet for the count textures (`none` skips filtering).
@@ -152,6 +161,8 @@ impl Default for Settings {
             gather: 8,
             gather_neighbours: 64,
             gather_stride: 4,
+            passes: None,
+            time: None,
         }
     }
 }
@@ -183,6 +194,17 @@ impl Settings {
         }
         if !(self.shadow_count >= 0.0) {
             return Err("--shadow-count must be ≥ 0".into());
+        }
+        if self.passes == Some(0) {
+            return Err("--passes must be at least 1".into());
+        }
+        if let Some(t) = self.time {
+            if !(t > 0.0 && t.is_finite()) {
+                return Err("--time must be a positive number of seconds".into());
+            }
+        }
+        if self.method == Method::Sppm && self.gather > 0 {
+            return Err("--method sppm gathers photons at the visible points itself: use --gather 0".into());
         }
         Ok(())
     }

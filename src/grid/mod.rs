@@ -7,7 +7,7 @@ pub mod radius;
 pub mod voxels;
 pub mod wavelet;
 
-pub use radius::{assumed_radius, blended_radius, GridQuantity, PlaneGrids};
+pub use radius::{assumed_radius, blended_radius, progressive_neighbours, GridQuantity, PlaneGrids};
 
 use crate::photon::Photon;
 use crate::scene::Scene;
@@ -118,16 +118,7 @@ impl Grids {
             let n = (expected as f32 * share) as usize;
             let size = VoxelGrid::suggest_voxel_size(n.max(1), settings.neighbours, area, scene.bounds.diagonal());
             let mut v = VoxelGrid::from_triangles(&tris, size);
-            let items: Vec<(Vec3, Vec3, f32)> = photons
-                .iter()
-                .zip(triangles)
-                .filter(|(_, &t)| !on_plane[t as usize])
-                .map(|(p, &t)| (p.pos(), scene.triangles[t as usize].cross(), 1.0))
-                .collect();
-            v.count_parallel(&items);
-            if settings.wavelet().is_some() {
-                v.denoise(1.0);
-            }
+            count_voxels(&mut v, scene, photons, triangles, &on_plane, settings);
             choice.push(format!(
                 "voxel grid: {:.4} m voxels, {} occupied, {:.1} MB, for {:.1} % of the surface",
                 size,
@@ -145,6 +136,19 @@ impl Grids {
             voxels,
             on_plane,
             choice,
+        }
+    }
+
+    /// Add a further pass's photons to the counts and refilter (progressive rendering: the
+    /// textures then hold every pass's photons so far).
+    pub fn add(&mut self, scene: &Scene, photons: &[Photon], triangles: &[u32], settings: &Settings) {
+        if let Some(p) = &mut self.planes {
+            let counted = PlaneGrids::count(p.set.clone(), photons, triangles, settings.grid_quantity, |_| true);
+            p.accumulate(&counted);
+            p.filter(settings.wavelet(), settings.threshold(), settings.wavelet_levels);
+        }
+        if let Some(v) = &mut self.voxels {
+            count_voxels(v, scene, photons, triangles, &self.on_plane, settings);
         }
     }
 
@@ -177,5 +181,20 @@ impl Grids {
     pub fn memory_bytes(&self) -> usize {
         self.planes.as_ref().map(|p| p.memory_bytes()).unwrap_or(0)
             + self.voxels.as_ref().map(|v| v.memory_bytes()).unwrap_or(0)
+    }
+}
+
+/// Count the photons of non-plane triangles into `v` (adding to what it holds), then filter.
+fn count_voxels(v: &mut VoxelGrid, scene: &Scene, photons: &[Photon], triangles: &[u32], on_plane: &[bool], settings: &Settings) {
+    // Voxel bins follow the triangle's winding normal, so count with it (not the facing one).
+    let items: Vec<(Vec3, Vec3, f32)> = photons
+        .iter()
+        .zip(triangles)
+        .filter(|(_, &t)| !on_plane[t as usize])
+        .map(|(p, &t)| (p.pos(), scene.triangles[t as usize].cross(), 1.0))
+        .collect();
+    v.count_parallel(&items);
+    if settings.wavelet().is_some() {
+        v.denoise(1.0);
     }
 }

@@ -116,8 +116,22 @@ pub struct PhotonStats {
     pub caustic: usize,
     /// Stored indirect photons.
     pub indirect: usize,
-    /// Bytes of photon storage.
+    /// Bytes of photon storage (of the largest pass).
     pub bytes: usize,
+}
+
+impl PhotonStats {
+    /// Add another pass's counts (the specular targets are the same every pass).
+    pub fn add(&mut self, o: &PhotonStats) {
+        self.emitted += o.emitted;
+        self.stored += o.stored;
+        self.caustic_emitted += o.caustic_emitted;
+        self.caustic_targets = self.caustic_targets.max(o.caustic_targets);
+        self.direct += o.direct;
+        self.caustic += o.caustic;
+        self.indirect += o.indirect;
+        self.bytes = self.bytes.max(o.bytes);
+    }
 }
 
 /// Paths per parallel work item: large enough to amortise scheduling, small for balance.

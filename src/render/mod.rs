@@ -5,7 +5,7 @@ use crate::accel::Accel;
 use crate::bsdf;
 use crate::estimate::{density_radiance, Gather, IrradianceCache, PhotonMap};
 use crate::film::{Aov, Film};
-use crate::grid::{blended_radius, Assumed, Grids};
+use crate::grid::{blended_radius, progressive_neighbours, Assumed, Grids};
 use crate::photon::neighbours::KnnBuffer;
 use crate::sampling::{self, stream, Rng};
 use crate::scene::{Camera, Scene, Surface};
@@ -13,6 +13,9 @@ use crate::surface::SurfacePoint;
 use crate::Rgb;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
+
+pub mod progressive;
+pub mod sppm;
 
 /// Where direct illumination comes from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
@@ -32,6 +35,9 @@ pub enum Method {
     Knn,
     /// The paper's: assumed radius from the filtered plane grids, blended with r_k.
     Adaptive,
+    /// Stochastic progressive photon mapping (Hachisuka & Jensen 2009): a radius per pixel
+    /// that shrinks as passes add photons (see [`sppm`]).
+    Sppm,
 }
 
 /// Settings of the camera pass.
@@ -53,8 +59,11 @@ pub struct RenderSettings {
     pub max_specular_depth: u32,
     /// Up to this depth both glass branches are followed; deeper, one is chosen by Fresnel.
     pub split_depth: u32,
-    /// Random seed.
+    /// Random seed (of this pass: [`crate::sampling::pass_seed`]).
     pub seed: u64,
+    /// Progressive pass (0-based); the adaptive radius shrinks with it
+    /// ([`progressive_neighbours`]).
+    pub pass: u32,
     /// Radius choice.
     pub method: Method,
     /// Blend factor α of `r = r_a + α (r_k − r_a)`.
@@ -108,11 +117,9 @@ pub fn render(
                 for x in 0..w as usize {
                     let pixel = (y * w as usize + x) as u64;
                     let mut sum = Rgb::ZERO;
-                    let strata = sampling::n_rooks(spp as usize, &mut Rng::keyed(settings.seed, stream::PIXEL, pixel));
+                    let strata = pixel_strata(settings, pixel);
                     for s in 0..spp {
-                        let mut rng = Rng::keyed(settings.seed, stream::CAMERA, pixel * spp as u64 + s as u64);
-                        let film_pos = Vec2::new(x as f32, y as f32) + strata.jitter(s as usize, rng.uniform2());
-                        let (o, d) = camera.generate_ray(film_pos, w, h);
+                        let (o, d, mut rng) = camera_ray(camera, settings, &strata, x, y, s);
                         let mut aov = (s == 0).then_some(&mut aovs[x]);
                         sum += tracer.radiance(o, d, 0, &mut rng, &mut aov);
                     }
@@ -122,6 +129,33 @@ pub fn render(
             },
         );
     film
+}
+
+/// The N-rooks strata of a pixel's `spp` samples.
+fn pixel_strata(settings: &RenderSettings, pixel: u64) -> sampling::NRooks {
+    sampling::n_rooks(
+        settings.spp.max(1) as usize,
+        &mut Rng::keyed(settings.seed, stream::PIXEL, pixel),
+    )
+}
+
+/// The jittered ray of sample `s` of pixel (x, y), and the random stream the rest of its path
+/// uses (keyed by pixel and sample: independent of threads).
+fn camera_ray(
+    camera: &Camera,
+    settings: &RenderSettings,
+    strata: &sampling::NRooks,
+    x: usize,
+    y: usize,
+    s: u32,
+) -> (Vec3, Vec3, Rng) {
+    let (w, h) = (settings.width, settings.height);
+    let spp = settings.spp.max(1) as u64;
+    let pixel = (y * w as usize + x) as u64;
+    let mut rng = Rng::keyed(settings.seed, stream::CAMERA, pixel * spp + s as u64);
+    let film_pos = Vec2::new(x as f32, y as f32) + strata.jitter(s as usize, rng.uniform2());
+    let (o, d) = camera.generate_ray(film_pos, w, h);
+    (o, d, rng)
 }
 
 impl Tracer<'_> {
@@ -259,10 +293,18 @@ impl Tracer<'_> {
     }
 
     /// Photons around a diffuse point, with the radius the method chooses.
+    ///
+    /// Progressive passes: kNN keeps `k` in every pass's own map (the passes' images are
+    /// averaged: noise falls, the bias of k neighbours among `photons` stays); the adaptive
+    /// method's counts hold every pass's photons so far and its neighbours grow with the pass
+    /// so that its radius shrinks ([`progressive_neighbours`]).
     fn gather(&mut self, sp: &SurfacePoint) -> Gather {
-        let k = self.settings.neighbours;
+        let (n_all, k) = match self.settings.method {
+            Method::Adaptive => progressive_neighbours(self.settings.neighbours, self.settings.pass),
+            _ => (self.settings.neighbours, self.settings.neighbours),
+        };
         let gk = self.map.knn(sp.position, sp.facing_normal, k, &mut self.knn);
-        if self.settings.method == Method::Knn {
+        if self.settings.method != Method::Adaptive {
             return gk;
         }
         let Some(grids) = self.grids else { return gk };
@@ -270,7 +312,7 @@ impl Tracer<'_> {
             sp.triangle,
             sp.position,
             sp.geometric_normal,
-            k,
+            n_all,
             self.settings.shadow_count,
         ) {
             Assumed::Radius(r) => r,
