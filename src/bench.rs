@@ -1474,10 +1474,17 @@ mod tests {
         assert_eq!(
             {
                 let mut s = Settings::default();
-                (method("knn").unwrap().apply)(&mut s);
+                (method("default").unwrap().apply)(&mut s);
                 s
             },
             Settings::default()
+        );
+        let mut s = Settings::default();
+        (method("knn").unwrap().apply)(&mut s);
+        assert_eq!(
+            (s.method, s.gather, s.caustic_photons),
+            (Method::Knn, 0, 0),
+            "classic kNN"
         );
         let mut s = Settings::default();
         (method("single-map-adaptive").unwrap().apply)(&mut s);
@@ -1518,7 +1525,7 @@ mod tests {
     fn presets() {
         let small = Matrix::preset(Preset::Small, vec!["s".into()]);
         small.validate().unwrap();
-        assert_eq!(small.expand().len(), 2 * 2 * 2);
+        assert_eq!(small.expand().len(), 3 * 2 * 2);
         assert_eq!((small.width, small.height), (320, 240));
         let full = Matrix::preset(Preset::Full, vec!["s".into(), "t".into()]);
         full.validate().unwrap();

@@ -200,7 +200,7 @@ fn trace_pass(
     let trace = TraceSettings {
         photons: settings.photons,
         max_depth: settings.max_photon_depth,
-        store_direct: settings.direct == DirectLighting::Photons || settings.gather > 0,
+        store_direct: settings.direct == DirectLighting::Photons || settings.effective_gather() > 0,
         seed: pass_seed(settings.seed, pass),
         record_triangles: settings.method == Method::Adaptive,
         caustic_photons: settings.caustic_photons,
@@ -222,7 +222,7 @@ fn trace_pass(
 
     // Final gathering reads irradiance from all photons at the gather rays' hits; the camera
     // then sees only what gathering cannot give: caustics (and direct light in single-map mode).
-    let irradiance = (settings.gather > 0).then(|| {
+    let irradiance = (settings.effective_gather() > 0).then(|| {
         let phase = progress.phase("irradiance", 0);
         let _s = tracing::info_span!("irradiance").entered();
         let all = PhotonMap::build(
@@ -244,7 +244,7 @@ fn trace_pass(
     let shown = |k: PhotonKind| match k {
         PhotonKind::Caustic => true,
         PhotonKind::Direct => direct_photons,
-        PhotonKind::Indirect => settings.gather == 0,
+        PhotonKind::Indirect => settings.effective_gather() == 0,
     };
     let (photons, photon_triangles): (Vec<Photon>, Vec<u32>) = if photon_triangles.is_empty() {
         (photons.into_iter().filter(|p| shown(p.kind())).collect(), Vec::new())
@@ -314,7 +314,7 @@ fn render_settings(camera: &Camera, settings: &Settings, pass: u32) -> RenderSet
         method: settings.method,
         alpha: settings.alpha,
         shadow_count: settings.shadow_count,
-        gather: settings.gather,
+        gather: settings.effective_gather(),
     }
 }
 

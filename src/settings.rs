@@ -203,9 +203,16 @@ impl Settings {
                 return Err("--time must be a positive number of seconds".into());
             }
         }
-        if self.method == Method::Sppm && self.gather > 0 {
-            return Err("--method sppm gathers photons at the visible points itself: use --gather 0".into());
-        }
         Ok(())
+    }
+
+    /// Final-gather rays actually used: SPPM gathers photons at its visible points itself, so
+    /// `gather` does not apply to it.
+    pub fn effective_gather(&self) -> u32 {
+        if self.method == Method::Sppm {
+            0
+        } else {
+            self.gather
+        }
     }
 }

@@ -37,6 +37,9 @@ fn base(photons: usize, view: &TopView) -> Settings {
         direct: DirectLighting::Photons,
         max_photon_depth: 1,
         caustic_photons: 0,
+        // The paper's setting: the photon map shown directly, plane grids only.
+        gather: 0,
+        grid: photongrid::grid::GridMode::Planes,
         ..Settings::default()
     }
 }

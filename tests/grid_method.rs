@@ -175,12 +175,13 @@ fn shadow_fallback_switches_where_it_should() {
         height: Some(view.h),
         direct: DirectLighting::Photons,
         caustic_photons: 0,
+        gather: 0, // the paper's setting: the photon map shown directly
         method: Method::Adaptive,
         seed: 5,
         ..Settings::default()
     };
     let prepared = prepare_adaptive(&scene, &settings);
-    let grids = prepared.grids.as_ref().unwrap();
+    let grids = prepared.grids.as_ref().and_then(|g| g.planes.as_ref()).unwrap();
     let floor_tri = (0..scene.triangles.len())
         .find(|&t| scene.triangles[t].p.iter().all(|p| p.y == 0.0))
         .unwrap() as u32;
@@ -296,7 +297,7 @@ fn plane_without_photons_and_tiny_plane() {
             ..Settings::default()
         };
         let prepared = prepare_adaptive(&scene, &settings);
-        let grids = prepared.grids.as_ref().unwrap();
+        let grids = prepared.grids.as_ref().and_then(|g| g.planes.as_ref()).unwrap();
         let plane = grids.set.plane_of_triangle[dark_tri];
         assert_ne!(plane, NO_PLANE, "the dark quad should be a plane");
         assert_eq!(grids.raw[plane as usize].sum(), 0.0);
@@ -355,7 +356,7 @@ fn plane_without_photons_and_tiny_plane() {
             ..Settings::default()
         };
         let prepared = prepare_adaptive(&scene, &settings);
-        let grids = prepared.grids.as_ref().unwrap();
+        let grids = prepared.grids.as_ref().and_then(|g| g.planes.as_ref()).unwrap();
         assert_eq!(grids.set.planes.len(), 2, "floor and tiny quad");
         let plane = grids.set.plane_of_triangle[tiny_tri];
         assert_ne!(plane, NO_PLANE);
@@ -641,6 +642,7 @@ fn counts_versus_flux() {
     let settings = Settings {
         photons: 400_000,
         caustic_photons: 0,
+        gather: 0, // the paper's setting: the photon map shown directly
         spp: 1,
         width: Some(64),
         height: Some(48),

@@ -185,7 +185,14 @@ impl Grids {
 }
 
 /// Count the photons of non-plane triangles into `v` (adding to what it holds), then filter.
-fn count_voxels(v: &mut VoxelGrid, scene: &Scene, photons: &[Photon], triangles: &[u32], on_plane: &[bool], settings: &Settings) {
+fn count_voxels(
+    v: &mut VoxelGrid,
+    scene: &Scene,
+    photons: &[Photon],
+    triangles: &[u32],
+    on_plane: &[bool],
+    settings: &Settings,
+) {
     // Voxel bins follow the triangle's winding normal, so count with it (not the facing one).
     let items: Vec<(Vec3, Vec3, f32)> = photons
         .iter()
