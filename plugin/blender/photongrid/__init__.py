@@ -109,15 +109,28 @@ class PhotongridSceneSettings(bpy.types.PropertyGroup):
         ],
         default="SHADOW_RAYS",
     )
-    method: StringProperty(
+    method: EnumProperty(
         name="Method",
-        description="Radius method (--method); passed only if set, for photongrid versions that have it",
-        default="",
+        description="Radius of the photon estimate (--method)",
+        items=[
+            ("DEFAULT", "Default", "The renderer's default (adaptive)"),
+            ("KNN", "kNN", "Classic k nearest neighbours"),
+            ("ADAPTIVE", "Adaptive", "The paper's grid-adaptive radius"),
+            ("SPPM", "SPPM", "Stochastic progressive photon mapping (use with a time budget)"),
+        ],
+        default="DEFAULT",
     )
-    grid: StringProperty(
+    grid: EnumProperty(
         name="Grid",
-        description="Grid setting (--grid); passed only if set, for photongrid versions that have it",
-        default="",
+        description="Grids of the adaptive method (--grid)",
+        items=[
+            ("DEFAULT", "Default", "The renderer's default (auto)"),
+            ("AUTO", "Auto", "Plane grids for planes, voxels where needed"),
+            ("PLANES", "Planes", "Plane grids only, as the paper"),
+            ("VOXELS", "Voxels", "One sparse voxel grid for every surface"),
+            ("NONE", "None", "No grid: plain kNN"),
+        ],
+        default="DEFAULT",
     )
     time_budget: StringProperty(
         name="Time Budget",

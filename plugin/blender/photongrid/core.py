@@ -529,8 +529,8 @@ def settings_from_scene(scene) -> RenderSettings:
         s.spp = int(props.spp)
         s.seed = int(props.seed)
         s.direct = "photons" if props.direct == "PHOTONS" else "shadow-rays"
-        s.method = props.method
-        s.grid = props.grid
+        s.method = "" if props.method == "DEFAULT" else props.method.lower()
+        s.grid = "" if props.grid == "DEFAULT" else props.grid.lower()
         s.time_budget = props.time_budget
     r = scene.render
     if getattr(r, "threads_mode", "AUTO") == "FIXED":

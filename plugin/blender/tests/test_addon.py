@@ -280,11 +280,11 @@ def test_missing_binary_reports_what_to_do(addon, monkeypatch, tmp_path):
 
 def test_cli_error_reaches_the_report(addon, binary, tmp_path):
     scene = build_scene(tmp_path)
-    scene.photongrid.method = "no-such-method"  # passed because it is set; this CLI rejects it
+    scene.photongrid.time_budget = "soon"  # passed because it is set; the CLI rejects it
     with pytest.raises(RuntimeError) as info:
         bpy.ops.render.render(write_still=True)
     message = str(info.value)
-    assert "photongrid failed" in message and "method" in message, message
+    assert "photongrid failed" in message and "time" in message, message
 
 
 def test_cancel_stops_the_process(addon, binary, tmp_path, monkeypatch):
