@@ -155,7 +155,7 @@ impl Default for Settings {
             threshold_value: 4.0,
             wavelet_levels: 4,
             alpha: 0.1,
-            shadow_count: 2.0,
+            shadow_count: 8.0,
             grid_quantity: GridQuantity::Count,
             caustic_photons: 1_000_000,
             gather: 8,

@@ -178,6 +178,8 @@ fn shadow_fallback_switches_where_it_should() {
         gather: 0, // the paper's setting: the photon map shown directly
         method: Method::Adaptive,
         seed: 5,
+        // The mechanism under test, at a threshold this photon count exceeds in the lit half.
+        shadow_count: 2.0,
         ..Settings::default()
     };
     let prepared = prepare_adaptive(&scene, &settings);
