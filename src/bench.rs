@@ -1039,17 +1039,7 @@ pub fn cost_series(runs: &[RunRecord]) -> Vec<(String, Vec<(usize, Spread)>)> {
 
 /// File name of a camera's chart.
 pub fn chart_name(scene: &str, camera: usize) -> String {
-    let safe: String = scene
-        .chars()
-        .map(|c| {
-            if c.is_alphanumeric() || c == '-' || c == '_' {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect();
-    format!("error_vs_time_{safe}_cam{camera}.svg")
+    format!("error_vs_time_{}_cam{camera}.svg", crate::output::safe_name(scene))
 }
 
 /// Write every chart and `table.md` for the runs of `file` into `out`; returns the paths.

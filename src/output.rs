@@ -63,12 +63,9 @@ impl AovSelection {
     }
 }
 
-/// Output path for a camera: `{camera}` replaced (by the name with characters other than
-/// letters, digits, `-` and `_` made `_`), or the name appended when several cameras share one path.
-pub fn output_for(pattern: &Path, camera: &str, several: bool) -> PathBuf {
-    let s = pattern.to_string_lossy();
-    let safe: String = camera
-        .chars()
+/// `name` with every character other than letters, digits, `-` and `_` made `_`, for file names.
+pub fn safe_name(name: &str) -> String {
+    name.chars()
         .map(|c| {
             if c.is_alphanumeric() || c == '-' || c == '_' {
                 c
@@ -76,7 +73,14 @@ pub fn output_for(pattern: &Path, camera: &str, several: bool) -> PathBuf {
                 '_'
             }
         })
-        .collect();
+        .collect()
+}
+
+/// Output path for a camera: `{camera}` replaced (by the name with characters other than
+/// letters, digits, `-` and `_` made `_`), or the name appended when several cameras share one path.
+pub fn output_for(pattern: &Path, camera: &str, several: bool) -> PathBuf {
+    let s = pattern.to_string_lossy();
+    let safe = safe_name(camera);
     if s.contains("{camera}") {
         return PathBuf::from(s.replace("{camera}", &safe));
     }

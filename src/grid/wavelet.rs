@@ -864,11 +864,10 @@ mod tests {
 
     impl SplitMix64 {
         fn next_u64(&mut self) -> u64 {
+            // SplitMix64: the crate's mixer applied to a Weyl sequence.
+            let z = self.0;
             self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = self.0;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            z ^ (z >> 31)
+            crate::sampling::mix64(z)
         }
 
         /// Uniform in [0, 1).
