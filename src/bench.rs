@@ -333,42 +333,6 @@ impl std::fmt::Display for RunKey {
 // Records
 // ---------------------------------------------------------------------------------------------
 
-/// Seconds per phase of one run (as [`PhaseTimes`], without output writing).
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct Seconds {
-    /// Loading the scene (once per scene, repeated in each of its runs).
-    pub load: f64,
-    /// BVH.
-    pub bvh: f64,
-    /// Photon tracing.
-    pub photons: f64,
-    /// Plane grids (adaptive).
-    pub grids: f64,
-    /// Irradiance precomputation (final gathering).
-    pub irradiance: f64,
-    /// Photon index.
-    pub build: f64,
-    /// Camera pass, all cameras.
-    pub render: f64,
-    /// load + prepare + every camera (scoring excluded).
-    pub total: f64,
-}
-
-impl From<&PhaseTimes> for Seconds {
-    fn from(t: &PhaseTimes) -> Self {
-        Seconds {
-            load: t.load,
-            bvh: t.bvh,
-            photons: t.photons,
-            grids: t.grids,
-            irradiance: t.irradiance,
-            build: t.build,
-            render: t.render,
-            total: t.total,
-        }
-    }
-}
-
 /// One camera of one run.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CameraResult {
@@ -401,7 +365,7 @@ pub struct RunRecord {
     /// The full settings.
     pub settings: Settings,
     /// Seconds per phase.
-    pub seconds: Seconds,
+    pub seconds: PhaseTimes,
     /// Peak resident memory of the run (bytes; the high-water mark is reset before each run
     /// when the kernel allows it, see `peak_memory_reset`).
     pub peak_memory_bytes: Option<u64>,
@@ -862,7 +826,7 @@ fn run_one(
     Ok(RunRecord {
         key: key.clone(),
         settings: settings.clone(),
-        seconds: Seconds::from(&times),
+        seconds: times.clone(),
         peak_memory_bytes: pipeline::peak_memory_bytes(),
         peak_memory_reset,
         photon_map_bytes: prepared.map.memory_bytes(),
@@ -1421,9 +1385,9 @@ mod tests {
                 let ncam = if key.scene == "beta" { 2 } else { 1 };
                 RunRecord {
                     settings: m.settings(&key).unwrap(),
-                    seconds: Seconds {
+                    seconds: PhaseTimes {
                         total: secs * ncam as f64,
-                        ..Seconds::default()
+                        ..PhaseTimes::default()
                     },
                     peak_memory_bytes: Some(1 << 20),
                     peak_memory_reset: true,

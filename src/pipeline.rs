@@ -9,7 +9,7 @@ use crate::photon::{trace_photons, PhotonStats, TraceSettings};
 use crate::photon::{Photon, PhotonKind};
 use crate::progress::Progress;
 use crate::render::progressive::{Accumulator, Budget, Stop};
-use crate::render::{DirectLighting, Method, RenderSettings};
+use crate::render::{DirectLighting, Method, PhotonData, RenderSettings};
 use crate::sampling::pass_seed;
 use crate::scene::{Camera, Scene};
 use crate::settings::Settings;
@@ -48,7 +48,8 @@ pub enum RenderError {
 }
 
 /// Seconds spent in each phase.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct PhaseTimes {
     /// Reading and validating the file.
     pub load: f64,
@@ -321,9 +322,7 @@ fn render_settings(camera: &Camera, settings: &Settings, pass: u32) -> RenderSet
 /// The photon data a camera pass reads.
 struct PassInputs<'a> {
     pass: u32,
-    map: &'a PhotonMap,
-    grids: Option<&'a Grids>,
-    irradiance: Option<&'a IrradianceCache>,
+    photons: PhotonData<'a>,
 }
 
 /// Add pass `input.pass` of `camera` to `acc`.
@@ -347,16 +346,7 @@ fn render_pass(
             pass = input.pass
         )
         .entered();
-        acc.add_pass(
-            scene,
-            accel,
-            input.map,
-            input.grids,
-            input.irradiance,
-            camera,
-            &rs,
-            &|n| phase.inc(n as u64),
-        );
+        acc.add_pass(scene, accel, input.photons, camera, &rs, &|n| phase.inc(n as u64));
     }
     phase.finish();
 }
@@ -373,9 +363,11 @@ pub fn render_camera(
     let mut acc = Accumulator::new(settings.method, w, h, settings.spp);
     let input = PassInputs {
         pass: 0,
-        map: &prepared.map,
-        grids: prepared.grids.as_ref(),
-        irradiance: prepared.irradiance.as_ref(),
+        photons: PhotonData {
+            map: &prepared.map,
+            grids: prepared.grids.as_ref(),
+            irradiance: prepared.irradiance.as_ref(),
+        },
     };
     render_pass(scene, &prepared.accel, &input, camera, settings, &mut acc, progress);
     acc.film()
@@ -457,9 +449,11 @@ pub fn render_passes(
         let tr = Instant::now();
         let input = PassInputs {
             pass: done,
-            map: &photons.map,
-            grids: grids.as_ref(),
-            irradiance: photons.irradiance.as_ref(),
+            photons: PhotonData {
+                map: &photons.map,
+                grids: grids.as_ref(),
+                irradiance: photons.irradiance.as_ref(),
+            },
         };
         for (camera, acc) in cameras.iter().zip(&mut accs) {
             render_pass(scene, &accel, &input, camera, settings, acc, progress);

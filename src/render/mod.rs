@@ -85,17 +85,28 @@ struct Tracer<'a> {
     knn: KnnBuffer,
 }
 
+/// What the camera pass reads from the photon pass: the photons shown directly, the grids of
+/// the adaptive radius, and precomputed irradiance for final gathering.
+#[derive(Clone, Copy)]
+pub struct PhotonData<'a> {
+    /// The photons estimated at visible points.
+    pub map: &'a PhotonMap,
+    /// Plane and voxel grids (adaptive method).
+    pub grids: Option<&'a Grids>,
+    /// Irradiance points (final gathering).
+    pub irradiance: Option<&'a IrradianceCache>,
+}
+
 /// Render `camera` into a film. `progress(rows)` is called as rows finish.
 pub fn render(
     scene: &Scene,
     accel: &Accel,
-    map: &PhotonMap,
-    grids: Option<&Grids>,
-    irradiance: Option<&IrradianceCache>,
+    photons: PhotonData<'_>,
     camera: &Camera,
     settings: &RenderSettings,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Film {
+    let PhotonData { map, grids, irradiance } = photons;
     let (w, h) = (settings.width, settings.height);
     let mut film = Film::new(w, h);
     let spp = settings.spp.max(1);

@@ -3,11 +3,9 @@
 //! each pass's photons, is [`crate::pipeline::render_passes`].
 
 use super::sppm::SppmFilm;
-use super::{render, Method, RenderSettings};
+use super::{render, Method, PhotonData, RenderSettings};
 use crate::accel::Accel;
-use crate::estimate::{IrradianceCache, PhotonMap};
 use crate::film::{Aov, Film};
-use crate::grid::Grids;
 use crate::scene::{Camera, Scene};
 use crate::Rgb;
 
@@ -50,17 +48,15 @@ impl Accumulator {
         &mut self,
         scene: &Scene,
         accel: &Accel,
-        map: &PhotonMap,
-        grids: Option<&Grids>,
-        irradiance: Option<&IrradianceCache>,
+        photons: PhotonData<'_>,
         camera: &Camera,
         settings: &RenderSettings,
         progress: &(dyn Fn(usize) + Sync),
     ) {
         match self {
-            Accumulator::Sppm(s) => s.add_pass(scene, accel, map, camera, settings, progress),
+            Accumulator::Sppm(s) => s.add_pass(scene, accel, photons.map, camera, settings, progress),
             Accumulator::Average { sum, aov, passes, .. } => {
-                let film = render(scene, accel, map, grids, irradiance, camera, settings, progress);
+                let film = render(scene, accel, photons, camera, settings, progress);
                 for (s, c) in sum.iter_mut().zip(&film.color) {
                     *s += *c;
                 }
