@@ -2,9 +2,8 @@
 //! time budget and checkpoints. (The SPPM radius update and the budget rule have unit tests
 //! beside their code: `render::sppm`, `render::progressive`.)
 
-mod common;
 
-use common::*;
+use photongrid_testkit::*;
 use photongrid::film::Film;
 use photongrid::pipeline::{prepare, render_camera, render_passes, select_cameras, Passes, PhaseTimes};
 use photongrid::progress::Progress;
@@ -234,7 +233,7 @@ fn time_budget_runs_at_least_one_pass_and_reports_the_count() {
         if budget == "0.000001" {
             assert_eq!(count, 1, "the minimum is one pass");
         }
-        let img = photongrid::output::read_exr_rgb(&dir.join("out.exr")).unwrap();
+        let img = photongrid_cli::metrics::read_exr_rgb(&dir.join("out.exr")).unwrap();
         assert_eq!((img.width, img.height), (24, 18));
     }
     // The add-on's spelling, with a unit.
@@ -290,7 +289,7 @@ fn checkpoint_leaves_a_readable_image_when_killed() {
     let v = seen.expect("a checkpoint event before the end");
     assert_eq!(v["path"].as_str().unwrap(), out.display().to_string());
     assert!(v["passes"].as_u64().unwrap() >= 1);
-    let img = photongrid::output::read_exr_rgb(&out).unwrap();
+    let img = photongrid_cli::metrics::read_exr_rgb(&out).unwrap();
     assert_eq!((img.width, img.height), (24, 18));
     assert!(img.data.iter().all(|c| c.iter().all(|v| v.is_finite())));
     assert!(img.data.iter().any(|c| c[0] > 0.0));

@@ -2,9 +2,8 @@
 //! optional PNG preview, both written atomically (temporary file, then rename).
 
 use crate::film::Film;
-use crate::metrics::Image;
 use exr::prelude::{
-    read_all_flat_layers_from_file, AnyChannel, AnyChannels, Encoding, FlatSamples, Layer, LayerAttributes,
+    AnyChannel, AnyChannels, Encoding, FlatSamples, Layer, LayerAttributes,
     WritableImage,
 };
 use std::path::{Path, PathBuf};
@@ -225,44 +224,6 @@ pub fn write_png(path: &Path, film: &Film, exposure: f32) -> Result<(), OutputEr
     write_atomic(path, &bytes)
 }
 
-/// Read the colour of an EXR's first part: `R,G,B` (or `<layer>.R`...), or `Y` as grey.
-pub fn read_exr_rgb(path: &Path) -> Result<Image, OutputError> {
-    let err = |message: String| OutputError::Exr {
-        path: path.to_path_buf(),
-        message,
-    };
-    let image = read_all_flat_layers_from_file(path).map_err(|e| err(e.to_string()))?;
-    let layer = image.layer_data.first().ok_or_else(|| err("no layer".into()))?;
-    let (w, h) = (layer.size.width(), layer.size.height());
-    let names: Vec<String> = layer.channel_data.list.iter().map(|c| c.name.to_string()).collect();
-    let find = |c: &str| {
-        names
-            .iter()
-            .position(|n| n == c)
-            .or_else(|| names.iter().position(|n| n.ends_with(&format!(".{c}"))))
-    };
-    let values = |i: usize| -> Vec<f32> {
-        match &layer.channel_data.list[i].sample_data {
-            FlatSamples::F16(v) => v.iter().map(|x| x.to_f32()).collect(),
-            FlatSamples::F32(v) => v.clone(),
-            FlatSamples::U32(v) => v.iter().map(|&x| x as f32).collect(),
-        }
-    };
-    let (r, g, b) = match (find("R"), find("G"), find("B"), find("Y")) {
-        (Some(r), Some(g), Some(b), _) => (values(r), values(g), values(b)),
-        (_, _, _, Some(y)) => {
-            let y = values(y);
-            (y.clone(), y.clone(), y)
-        }
-        _ => return Err(err(format!("no R,G,B or Y channels (has {})", names.join(", ")))),
-    };
-    let mut img = Image::new(w, h);
-    for i in 0..w * h {
-        img.data[i] = [r[i], g[i], b[i]];
-    }
-    Ok(img)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -278,15 +239,18 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let p = dir.join("a.exr");
         write_exr(&p, &film, AovSelection::all()).unwrap();
-        let back = read_exr_rgb(&p).unwrap();
-        assert_eq!((back.width, back.height), (5, 3));
-        assert_eq!(back.data[7], [7.0, 0.5, 1e-3]);
-        let names: Vec<String> = read_all_flat_layers_from_file(&p).unwrap().layer_data[0]
-            .channel_data
-            .list
-            .iter()
-            .map(|c| c.name.to_string())
-            .collect();
+        let image = exr::prelude::read_all_flat_layers_from_file(&p).unwrap();
+        let layer = &image.layer_data[0];
+        assert_eq!((layer.size.width(), layer.size.height()), (5, 3));
+        let channel = |name: &str| {
+            let c = layer.channel_data.list.iter().find(|c| c.name.to_string() == name).unwrap();
+            match &c.sample_data {
+                FlatSamples::F32(v) => v.clone(),
+                _ => panic!("{name} is not f32"),
+            }
+        };
+        assert_eq!([channel("R")[7], channel("G")[7], channel("B")[7]], [7.0, 0.5, 1e-3]);
+        let names: Vec<String> = layer.channel_data.list.iter().map(|c| c.name.to_string()).collect();
         assert!(names.contains(&"albedo.R".to_string()) && names.contains(&"depth.Z".to_string()));
         // No temporary file left behind.
         assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);

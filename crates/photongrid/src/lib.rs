@@ -4,19 +4,15 @@
 //! The modules follow the data: [`scene`] (glTF → triangles, materials, lights, cameras) →
 //! [`accel`] (BVH) → [`photon`] (tracing, storage, neighbour search) → [`estimate`] (radiance
 //! from photons) → [`render`] (camera pass) → [`film`] → [`output`] (EXR/PNG). [`pipeline`]
-//! runs them in order; [`settings`] is the one set of options every front end shares;
-//! [`bench`] measures error against time over a matrix of methods, budgets, scenes and seeds.
+//! runs them in order; [`settings`] is the one set of options every front end shares.
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
 pub mod accel;
-pub mod batch;
-pub mod bench;
 pub mod bsdf;
 pub mod estimate;
 pub mod film;
 pub mod grid;
-pub mod metrics;
 pub mod output;
 pub mod photon;
 pub mod pipeline;

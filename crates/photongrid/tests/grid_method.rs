@@ -3,10 +3,9 @@
 //! smaller than a cell, continuity of the interpolated counts across cells and across the
 //! border of two planes, and what counting flux instead of photons changes.
 
-mod common;
 
-use common::harness::*;
-use common::*;
+use photongrid_testkit::harness::*;
+use photongrid_testkit::*;
 use glam::Vec3;
 use photongrid::accel::Accel;
 use photongrid::grid::planes::{PlaneSet, NO_PLANE};
@@ -712,7 +711,7 @@ fn counts_versus_flux() {
     );
     eprintln!("{doc}");
     if std::env::var("PHOTONGRID_WRITE_DOCS").is_ok_and(|v| v == "1") {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/grid_method.md");
+        let path = photongrid_testkit::repo_root().join("docs/grid_method.md");
         std::fs::create_dir_all(path.parent().unwrap()).unwrap();
         std::fs::write(
             &path,

@@ -799,7 +799,12 @@ pub fn simple_scene(candela: f32) -> Gltf {
     g
 }
 
-/// Path of a file in the crate's `samples/` folder.
+/// The repository's root folder (where `samples/` and `docs/` are).
+pub fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// Path of a file in the repository's `samples/` folder.
 pub fn sample(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("samples").join(name)
+    repo_root().join("samples").join(name)
 }

@@ -17,7 +17,8 @@ use serde::{Deserialize, Serialize};
 use voxels::VoxelGrid;
 
 /// Which grids the adaptive method uses.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum GridMode {
     /// Plane grids for planes; voxels only where enough receiving area is not planar.

@@ -144,7 +144,7 @@ pub fn check_photon_memory(photons: usize, caustic: usize) -> Result<(), RenderE
 pub fn prepare(
     scene: &Scene,
     settings: &Settings,
-    progress: &Progress,
+    progress: &Progress<'_>,
     times: &mut PhaseTimes,
 ) -> Result<Prepared, RenderError> {
     settings.validate().map_err(RenderError::Settings)?;
@@ -167,7 +167,7 @@ pub fn prepare(
     })
 }
 
-fn build_accel(scene: &Scene, progress: &Progress, times: &mut PhaseTimes) -> Accel {
+fn build_accel(scene: &Scene, progress: &Progress<'_>, times: &mut PhaseTimes) -> Accel {
     let phase = progress.phase("bvh", 0);
     let accel = {
         let _s = tracing::info_span!("bvh", triangles = scene.triangles.len()).entered();
@@ -194,7 +194,7 @@ fn trace_pass(
     settings: &Settings,
     pass: u32,
     grids: &mut Option<Grids>,
-    progress: &Progress,
+    progress: &Progress<'_>,
     times: &mut PhaseTimes,
 ) -> PassPhotons {
     let max_radius = settings.max_radius_rel * scene.bounds.diagonal();
@@ -333,7 +333,7 @@ fn render_pass(
     camera: &Camera,
     settings: &Settings,
     acc: &mut Accumulator,
-    progress: &Progress,
+    progress: &Progress<'_>,
 ) {
     let rs = render_settings(camera, settings, input.pass);
     let phase = progress.phase("render", rs.height as u64);
@@ -357,7 +357,7 @@ pub fn render_camera(
     prepared: &Prepared,
     camera: &Camera,
     settings: &Settings,
-    progress: &Progress,
+    progress: &Progress<'_>,
 ) -> Film {
     let (w, h) = resolution(camera, settings);
     let mut acc = Accumulator::new(settings.method, w, h, settings.spp);
@@ -415,7 +415,7 @@ pub fn render_passes(
     cameras: &[&Camera],
     settings: &Settings,
     start: Instant,
-    progress: &Progress,
+    progress: &Progress<'_>,
     times: &mut PhaseTimes,
     mut checkpoint: Option<Checkpoint<'_>>,
 ) -> Result<Passes, RenderError> {

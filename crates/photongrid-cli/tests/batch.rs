@@ -8,7 +8,7 @@ const BIN: &str = env!("CARGO_BIN_EXE_photongrid");
 const TINY: &str = "width = 48\nheight = 36\nphotons = 20000\nspp = 1\n";
 
 fn samples() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("samples")
+    photongrid_testkit::repo_root().join("samples")
 }
 
 fn tmp(name: &str) -> PathBuf {

@@ -3,10 +3,9 @@
 
 use photongrid::grid::{GridMode, Grids};
 use photongrid::Settings;
-use std::path::Path;
 
 fn scene(name: &str) -> photongrid::scene::Scene {
-    photongrid::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("samples").join(name)).unwrap()
+    photongrid::load(&photongrid_testkit::repo_root().join("samples").join(name)).unwrap()
 }
 
 fn grids(s: &photongrid::scene::Scene, mode: GridMode) -> Grids {

@@ -9,10 +9,9 @@
 //! `PHOTONGRID_WRITE_DOCS=1 cargo test --release --test failure_cases -- --nocapture` also
 //! writes the table to `docs/failure_cases.md`.
 
-mod common;
 
-use common::harness::*;
-use common::*;
+use photongrid_testkit::harness::*;
+use photongrid_testkit::*;
 use glam::Quat;
 use photongrid::film::Film;
 use photongrid::render::DirectLighting;
@@ -789,7 +788,7 @@ fn failure_cases() {
         }
     }
     if std::env::var("PHOTONGRID_WRITE_DOCS").is_ok_and(|v| v == "1") {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/failure_cases.md");
+        let path = photongrid_testkit::repo_root().join("docs/failure_cases.md");
         std::fs::create_dir_all(path.parent().unwrap()).unwrap();
         std::fs::write(&path, docs(&report)).unwrap();
         eprintln!("wrote {}", path.display());

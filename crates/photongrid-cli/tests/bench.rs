@@ -37,7 +37,7 @@ fn s(p: &Path) -> &str {
 
 /// Polylines drawn with the data-line stroke (axes and ticks are 1 px).
 fn data_lines(svg: &str) -> usize {
-    let w = format!("stroke-width=\"{}\"", photongrid::bench::DATA_STROKE);
+    let w = format!("stroke-width=\"{}\"", photongrid_cli::bench::DATA_STROKE);
     svg.split('<')
         .filter(|t| t.starts_with("polyline") && t.contains(&w))
         .count()
@@ -57,7 +57,7 @@ fn bench_runs_a_matrix_and_writes_json_charts_and_table() {
     let scenes = root.join("scenes");
     let refs = scenes.join("refs");
     std::fs::create_dir_all(&refs).unwrap();
-    let sample = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/cornell_glass.glb");
+    let sample = photongrid_testkit::repo_root().join("samples/cornell_glass.glb");
     std::fs::copy(&sample, scenes.join("cornell_glass.glb")).unwrap();
 
     // The "reference": photongrid at 32×24 with more photons and another seed.
@@ -157,7 +157,7 @@ fn bench_runs_a_matrix_and_writes_json_charts_and_table() {
             ("knn".to_string(), 40000)
         ]
     );
-    photongrid::bench::BenchFile::read(&out.join("bench.json")).expect("typed read");
+    photongrid_cli::bench::BenchFile::read(&out.join("bench.json")).expect("typed read");
 
     // Charts: one data line per method.
     for chart in ["error_vs_time_cornell_glass_cam0.svg", "time_vs_photons.svg"] {

@@ -18,7 +18,8 @@ pub mod progressive;
 pub mod sppm;
 
 /// Where direct illumination comes from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum DirectLighting {
     /// Shadow rays to every light; the photon map gives indirect light and caustics only.
@@ -28,7 +29,8 @@ pub enum DirectLighting {
 }
 
 /// How the photon estimate chooses its radius.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Method {
     /// Classic k nearest neighbours (Jensen): r = distance to the k-th photon.

@@ -6,8 +6,10 @@ use clap::{Args, Parser, Subcommand};
 use photongrid::film::Film;
 use photongrid::grid::{GridMode, GridQuantity};
 use photongrid::output::{self, output_for, AovSelection};
+use photongrid_cli::metrics::read_exr_rgb;
+use photongrid_cli::progress::{emit_json, Display, ProgressMode};
 use photongrid::pipeline::{self, PhaseTimes};
-use photongrid::progress::{emit_json, Progress, ProgressMode};
+use photongrid::progress::Progress;
 use photongrid::render::{DirectLighting, Method};
 use photongrid::scene::gltf::{load_with, LoadOptions};
 use photongrid::settings::{ThresholdChoice, WaveletChoice};
@@ -70,8 +72,8 @@ struct BenchArgs {
     #[arg(short, long, default_value = "out/bench")]
     out: PathBuf,
     /// Matrix preset; the options below override its parts.
-    #[arg(long, value_enum, default_value_t = photongrid::bench::Preset::Small)]
-    preset: photongrid::bench::Preset,
+    #[arg(long, value_enum, default_value_t = photongrid_cli::bench::Preset::Small)]
+    preset: photongrid_cli::bench::Preset,
     /// Methods, comma-separated: knn, knn-k500, adaptive, single-map-knn, single-map-adaptive, gather8.
     #[arg(long, value_delimiter = ',')]
     methods: Vec<String>,
@@ -327,7 +329,7 @@ fn run(cli: Cli) -> Result<()> {
 }
 
 fn bench(a: BenchArgs) -> Result<()> {
-    use photongrid::bench;
+    use photongrid_cli::bench;
     if a.report_only {
         let file = bench::BenchFile::read(&a.out.join("bench.json"))?;
         for p in bench::write_reports(&file, &a.out)? {
@@ -482,7 +484,8 @@ fn render(a: RenderArgs) -> Result<()> {
     }
     let settings = settings_of(&a);
     settings.validate().map_err(|e| anyhow::anyhow!(e))?;
-    let progress = Progress::new(a.progress);
+    let display = Display::new(a.progress);
+    let progress = Progress::new(&display);
     let mut times = PhaseTimes::default();
 
     let phase = progress.phase("load", 0);
@@ -627,7 +630,7 @@ fn render(a: RenderArgs) -> Result<()> {
 }
 
 fn batch(a: BatchArgs) -> Result<()> {
-    use photongrid::batch;
+    use photongrid_cli::batch;
     let start = Instant::now();
     if a.jobs == 0 {
         bail!("--jobs must be at least 1");
@@ -801,13 +804,13 @@ fn info(path: &Path, json: bool) -> Result<()> {
 }
 
 fn compare(image: &Path, reference: &Path, mask: Option<&Path>, block: usize, json: bool) -> Result<()> {
-    let img = output::read_exr_rgb(image)?;
-    let r = output::read_exr_rgb(reference)?;
+    let img = read_exr_rgb(image)?;
+    let r = read_exr_rgb(reference)?;
     let m = match mask {
-        Some(m) => Some(photongrid::metrics::mask_from_rgb(&output::read_exr_rgb(m)?)),
+        Some(m) => Some(photongrid_cli::metrics::mask_from_rgb(&read_exr_rgb(m)?)),
         None => None,
     };
-    let s = photongrid::metrics::score(&img, &r, m.as_deref(), block)
+    let s = photongrid_cli::metrics::score(&img, &r, m.as_deref(), block)
         .map_err(|e| anyhow::anyhow!("{}: {e}", image.display()))?;
     if json {
         println!("{}", serde_json::to_string(&s)?);

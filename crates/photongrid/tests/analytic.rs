@@ -2,9 +2,8 @@
 //! on a Lambert plane, the photon estimate, emission, light units, glTF transforms and
 //! primitive modes, glass energy conservation, and thread-count independence.
 
-mod common;
 
-use common::*;
+use photongrid_testkit::*;
 use glam::{Mat4, Quat, Vec3};
 use photongrid::film::Film;
 use photongrid::photon::PhotonKind;

@@ -14,12 +14,12 @@
 //! and the EXR's length and hash. A unit is skipped only if its sidecar has the same key, the
 //! EXR has the recorded length and hash, and it reads back at the right size.
 
-use crate::output::{self, output_for, AovSelection};
-use crate::pipeline::{self, PhaseTimes};
-use crate::progress::Progress;
-use crate::scene::gltf::{load_with, LoadOptions};
-use crate::scene::Scene;
-use crate::settings::Settings;
+use photongrid::output::{self, output_for, AovSelection};
+use photongrid::pipeline::{self, PhaseTimes};
+use photongrid::progress::Progress;
+use photongrid::scene::gltf::{load_with, LoadOptions};
+use photongrid::scene::Scene;
+use photongrid::settings::Settings;
 use serde::Serialize;
 use serde_json::{json, Value};
 use std::collections::{HashMap, VecDeque};
@@ -479,7 +479,7 @@ pub fn check_done(u: &Unit) -> Result<(), String> {
             out.display()
         ));
     }
-    let img = output::read_exr_rgb(out).map_err(|e| e.to_string())?;
+    let img = crate::metrics::read_exr_rgb(out).map_err(|e| e.to_string())?;
     if (Some(img.width as u32), Some(img.height as u32)) != (u.width, u.height) {
         return Err(format!("{} is {}×{}", out.display(), img.width, img.height));
     }
@@ -675,7 +675,7 @@ fn render_group(units: &[&Unit], _opts: &RunOptions) -> Result<Vec<UnitReport>, 
     times.load = t.elapsed().as_secs_f64();
     // Units whose camera is missing fail alone; the others share every pass's photons.
     let mut reports = Vec::new();
-    let mut ok: Vec<(&Unit, &crate::scene::Camera)> = Vec::new();
+    let mut ok: Vec<(&Unit, &photongrid::scene::Camera)> = Vec::new();
     for &u in units {
         match u
             .camera
@@ -690,7 +690,7 @@ fn render_group(units: &[&Unit], _opts: &RunOptions) -> Result<Vec<UnitReport>, 
     if ok.is_empty() {
         return Ok(reports);
     }
-    let cameras: Vec<&crate::scene::Camera> = ok.iter().map(|(_, c)| *c).collect();
+    let cameras: Vec<&photongrid::scene::Camera> = ok.iter().map(|(_, c)| *c).collect();
     let result = pipeline::render_passes(&scene, &cameras, settings, t, &progress, &mut times, None)
         .map_err(|e| e.to_string())?;
     // Time before the writes (load, photons, all passes) is split between the units.

@@ -10,10 +10,10 @@
 //! count today; [`Budget::Seconds`] is the slot for a time budget once the renderer has one.
 
 use crate::metrics::{self, Image, Scores};
-use crate::pipeline::{self, PhaseTimes};
-use crate::progress::Progress;
-use crate::render::{DirectLighting, Method};
-use crate::settings::Settings;
+use photongrid::pipeline::{self, PhaseTimes};
+use photongrid::progress::Progress;
+use photongrid::render::{DirectLighting, Method};
+use photongrid::settings::Settings;
 use anyhow::{anyhow, bail, Context, Result};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -107,7 +107,7 @@ fn classic(s: &mut Settings, method: Method) {
     s.method = method;
     s.gather = 0;
     s.caustic_photons = 0;
-    s.grid = crate::grid::GridMode::Planes;
+    s.grid = photongrid::grid::GridMode::Planes;
 }
 
 /// The preset called `name`.
@@ -417,7 +417,7 @@ impl BenchFile {
     /// Write atomically.
     pub fn write(&self, path: &Path) -> Result<()> {
         let text = serde_json::to_string_pretty(self)?;
-        crate::output::write_atomic(path, text.as_bytes())?;
+        photongrid::output::write_atomic(path, text.as_bytes())?;
         Ok(())
     }
 }
@@ -603,13 +603,13 @@ fn load_refs(scene: &SceneRefs, w: usize, h: usize) -> Result<Vec<LoadedRef>> {
         .cameras
         .iter()
         .map(|c| {
-            let full = crate::output::read_exr_rgb(&c.reference)?;
+            let full = crate::metrics::read_exr_rgb(&c.reference)?;
             let at = |e: String| anyhow!("{}: {e}", c.reference.display());
             let factors = scale_factors((full.width, full.height), (w, h)).map_err(at)?;
             let reference = downscale(&full, w, h).map_err(at)?;
             let mask = match &c.mask {
                 Some(p) => {
-                    let m = crate::output::read_exr_rgb(p)?;
+                    let m = crate::metrics::read_exr_rgb(p)?;
                     if (m.width, m.height) != (full.width, full.height) {
                         bail!("{}: mask size differs from the reference's", p.display());
                     }
@@ -728,7 +728,7 @@ pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<Summary> {
             continue;
         }
         let t = Instant::now();
-        let scene = crate::load(&scene_refs.path)?;
+        let scene = photongrid::load(&scene_refs.path)?;
         let load_s = t.elapsed().as_secs_f64();
         let refs = load_refs(scene_refs, w, h)?;
         let cameras = refs
@@ -782,12 +782,12 @@ pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<Summary> {
 }
 
 fn run_one(
-    scene: &crate::scene::Scene,
+    scene: &photongrid::scene::Scene,
     key: &RunKey,
     settings: &Settings,
     load_s: f64,
     refs: &[LoadedRef],
-    cameras: &[&crate::scene::Camera],
+    cameras: &[&photongrid::scene::Camera],
 ) -> Result<RunRecord> {
     let peak_memory_reset = reset_peak_memory();
     let load_average = load_average();
@@ -1003,7 +1003,7 @@ pub fn cost_series(runs: &[RunRecord]) -> Vec<(String, Vec<(usize, Spread)>)> {
 
 /// File name of a camera's chart.
 pub fn chart_name(scene: &str, camera: usize) -> String {
-    format!("error_vs_time_{}_cam{camera}.svg", crate::output::safe_name(scene))
+    format!("error_vs_time_{}_cam{camera}.svg", photongrid::output::safe_name(scene))
 }
 
 /// Write every chart and `table.md` for the runs of `file` into `out`; returns the paths.
@@ -1012,16 +1012,16 @@ pub fn write_reports(file: &BenchFile, out: &Path) -> Result<Vec<PathBuf>> {
     for (scene, cam) in cameras_of(&file.runs) {
         let path = out.join(chart_name(&scene, cam));
         let svg = error_vs_time_svg(&file.runs, &scene, cam)?;
-        crate::output::write_atomic(&path, svg.as_bytes())?;
+        photongrid::output::write_atomic(&path, svg.as_bytes())?;
         written.push(path);
     }
     if !file.runs.is_empty() {
         let path = out.join("time_vs_photons.svg");
-        crate::output::write_atomic(&path, time_vs_photons_svg(&file.runs)?.as_bytes())?;
+        photongrid::output::write_atomic(&path, time_vs_photons_svg(&file.runs)?.as_bytes())?;
         written.push(path);
     }
     let path = out.join("table.md");
-    crate::output::write_atomic(&path, table_md(file).as_bytes())?;
+    photongrid::output::write_atomic(&path, table_md(file).as_bytes())?;
     written.push(path);
     Ok(written)
 }

@@ -77,7 +77,8 @@ pub struct Settings {
 }
 
 /// Wavelet for the count textures (`none` skips filtering).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum WaveletChoice {
     /// No filtering: raw counts.
@@ -91,7 +92,8 @@ pub enum WaveletChoice {
 }
 
 /// Thresholding of wavelet detail coefficients.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum ThresholdChoice {
     /// Keep all details (perfect reconstruction).

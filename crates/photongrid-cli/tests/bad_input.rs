@@ -1,9 +1,8 @@
 //! The real binary on broken files and bad options: a non-zero exit, no panic, and a message
 //! naming the file and the element (or the option). Also the help texts and one real render.
 
-mod common;
 
-use common::*;
+use photongrid_testkit::*;
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -467,7 +466,7 @@ fn readme_render_of_cornell_glass() {
     );
     assert!(r.ok(), "exit {:?}:\n{}", r.code, r.stderr);
     assert!(!r.stderr.contains("panicked"));
-    let img = photongrid::output::read_exr_rgb(&out).unwrap();
+    let img = photongrid_cli::metrics::read_exr_rgb(&out).unwrap();
     assert_eq!((img.width, img.height), (64, 48));
     assert_eq!(img.data.len(), 64 * 48);
     assert!(

@@ -43,6 +43,8 @@
 use std::fmt;
 
 use serde::{Deserialize, Deserializer, Serialize};
+use exr::prelude::{read_all_flat_layers_from_file, FlatSamples};
+use std::path::Path;
 
 /// Rec.709 luminance weights for linear R, G, B.
 const LUM: [f64; 3] = [0.2126, 0.7152, 0.0722];
@@ -410,6 +412,44 @@ pub fn score(image: &Image, reference: &Image, exclude: Option<&[bool]>, block: 
 /// and so keeps its pixel; `+inf` excludes it.
 pub fn mask_from_rgb(mask: &Image) -> Vec<bool> {
     mask.data.iter().map(|&p| luminance(p) > MASK_THRESHOLD).collect()
+}
+
+/// Read the colour of an EXR's first part: `R,G,B` (or `<layer>.R`...), or `Y` as grey.
+pub fn read_exr_rgb(path: &Path) -> Result<Image, photongrid::output::OutputError> {
+    let err = |message: String| photongrid::output::OutputError::Exr {
+        path: path.to_path_buf(),
+        message,
+    };
+    let image = read_all_flat_layers_from_file(path).map_err(|e| err(e.to_string()))?;
+    let layer = image.layer_data.first().ok_or_else(|| err("no layer".into()))?;
+    let (w, h) = (layer.size.width(), layer.size.height());
+    let names: Vec<String> = layer.channel_data.list.iter().map(|c| c.name.to_string()).collect();
+    let find = |c: &str| {
+        names
+            .iter()
+            .position(|n| n == c)
+            .or_else(|| names.iter().position(|n| n.ends_with(&format!(".{c}"))))
+    };
+    let values = |i: usize| -> Vec<f32> {
+        match &layer.channel_data.list[i].sample_data {
+            FlatSamples::F16(v) => v.iter().map(|x| x.to_f32()).collect(),
+            FlatSamples::F32(v) => v.clone(),
+            FlatSamples::U32(v) => v.iter().map(|&x| x as f32).collect(),
+        }
+    };
+    let (r, g, b) = match (find("R"), find("G"), find("B"), find("Y")) {
+        (Some(r), Some(g), Some(b), _) => (values(r), values(g), values(b)),
+        (_, _, _, Some(y)) => {
+            let y = values(y);
+            (y.clone(), y.clone(), y)
+        }
+        _ => return Err(err(format!("no R,G,B or Y channels (has {})", names.join(", ")))),
+    };
+    let mut img = Image::new(w, h);
+    for i in 0..w * h {
+        img.data[i] = [r[i], g[i], b[i]];
+    }
+    Ok(img)
 }
 
 #[cfg(test)]

@@ -8,7 +8,8 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 /// What a cell of the texture accumulates.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum GridQuantity {
     /// Number of photons. The kNN radius is set by how many photons lie around a point, so

@@ -1,0 +1,10 @@
+//! The `photongrid` command line's parts, as a library so tests can reach them: batch jobs,
+//! the error-against-time bench, image metrics and progress display. The renderer itself is
+//! the `photongrid` crate; everything here is a client of it.
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+
+pub mod batch;
+pub mod bench;
+pub mod metrics;
+pub mod progress;
