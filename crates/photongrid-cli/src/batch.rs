@@ -15,7 +15,7 @@
 //! EXR has the recorded length and hash, and it reads back at the right size.
 
 use photongrid::output::{self, output_for, AovSelection};
-use photongrid::pipeline::{self, PhaseTimes};
+use photongrid::pipeline::{self, CameraReport, RenderRequest};
 use photongrid::progress::Progress;
 use photongrid::scene::gltf::{load_with, LoadOptions};
 use photongrid::scene::Scene;
@@ -283,7 +283,7 @@ fn job_from_table(index: usize, t: toml::Table, base: &Path) -> Result<Job, JobE
         Some(v) => return Err(fail(format!("`aovs` must be true or false, not {}", v.type_str()))),
     };
     let settings = settings_of(&t).map_err(fail)?;
-    settings.validate().map_err(fail)?;
+    settings.validate().map_err(|e| fail(e.to_string()))?;
     Ok(Job {
         index,
         scene: tidy(&base.join(scene_s)),
@@ -669,10 +669,9 @@ fn render_group(units: &[&Unit], _opts: &RunOptions) -> Result<Vec<UnitReport>, 
     let first = units[0];
     let settings = &first.settings;
     let progress = Progress::quiet();
-    let mut times = PhaseTimes::default();
     let t = Instant::now();
     let scene = load_with(&first.scene, &LoadOptions::default()).map_err(|e| e.to_string())?;
-    times.load = t.elapsed().as_secs_f64();
+    let load_seconds = t.elapsed().as_secs_f64();
     // Units whose camera is missing fail alone; the others share every pass's photons.
     let mut reports = Vec::new();
     let mut ok: Vec<(&Unit, &photongrid::scene::Camera)> = Vec::new();
@@ -691,11 +690,16 @@ fn render_group(units: &[&Unit], _opts: &RunOptions) -> Result<Vec<UnitReport>, 
         return Ok(reports);
     }
     let cameras: Vec<&photongrid::scene::Camera> = ok.iter().map(|(_, c)| *c).collect();
-    let result = pipeline::render_passes(&scene, &cameras, settings, t, &progress, &mut times, None)
-        .map_err(|e| e.to_string())?;
+    let request = RenderRequest {
+        scene: &scene,
+        cameras: &cameras,
+        settings,
+        start: t,
+    };
+    let rendered = pipeline::render(&request, &progress, None).map_err(|e| e.to_string())?;
     // Time before the writes (load, photons, all passes) is split between the units.
     let shared = t.elapsed().as_secs_f64();
-    for ((u, _), film) in ok.iter().zip(&result.films) {
+    for (((u, _), film), camera) in ok.iter().zip(&rendered.films).zip(&rendered.report.cameras) {
         let tw = Instant::now();
         let result_unit = (|| -> Result<Value, String> {
             let out = u.output.as_deref().ok_or("no output")?;
@@ -710,21 +714,16 @@ fn render_group(units: &[&Unit], _opts: &RunOptions) -> Result<Vec<UnitReport>, 
             };
             let bytes = output::encode_exr(film, aovs).map_err(|m| format!("{}: EXR error: {m}", out.display()))?;
             output::write_atomic(out, &bytes).map_err(|e| e.to_string())?;
-            let write_s = tw.elapsed().as_secs_f64();
-            let seconds = json!({
-                "load": times.load, "bvh": times.bvh, "photons": times.photons, "build": times.build,
-                "render": times.render, "write": write_s,
-            });
-            let stats = json!({
-                "seconds": seconds,
-                "photon_map_shared_by": ok.len(),
-                "photons": result.photon_stats,
-                "passes": {"count": result.passes, "stopped_by": result.stop, "seconds": result.pass_seconds},
-                "width": film.width, "height": film.height,
-                "mean_rgb": film.mean().to_array(),
-                "nonfinite_pixels": film.nonfinite(),
-                "threads": rayon::current_num_threads(),
-            });
+            // The unit's report: the render's, with this camera only and its own write time.
+            let mut report = rendered.report.clone();
+            report.seconds.load = load_seconds;
+            report.seconds.write = tw.elapsed().as_secs_f64();
+            report.cameras = vec![CameraReport {
+                output: Some(out.to_path_buf()),
+                ..camera.clone()
+            }];
+            let mut stats = serde_json::to_value(&report).map_err(|e| e.to_string())?;
+            stats["photon_map_shared_by"] = json!(ok.len());
             let side = json!({
                 "key": u.key(),
                 "key_source": u.key_source,
@@ -819,7 +818,7 @@ mod tests {
             (a.settings.photons, a.settings.spp, a.settings.light_samples),
             (1000, 3, 2)
         );
-        assert_eq!(a.settings.max_radius_rel, 0.1);
+        assert_eq!(a.settings.max_radius, 0.1);
         assert!(a.cameras.is_empty());
         let b = jobs[1].as_ref().unwrap();
         assert_eq!(b.cameras, vec!["0".to_string(), "Cam".into()]);

@@ -6,15 +6,16 @@
 //! [`crate::metrics::score`], unmasked and with the specular mask. Results go to `bench.json`
 //! (one [`RunRecord`] per scene/method/budget/seed/size), SVG charts and a Markdown table.
 //!
-//! Methods are named presets of [`Settings`], all in one table: [`METHODS`]. A budget is a photon
-//! count today; [`Budget::Seconds`] is the slot for a time budget once the renderer has one.
+//! Methods are named presets of [`Settings`], all in one table: [`METHODS`]. A run's workload is
+//! a photon count per pass or a wall-time budget (`--time`). Every camera is rendered by its own
+//! [`pipeline::render`] request, exactly as `photongrid render --camera I` renders it.
 
 use crate::metrics::{self, Image, Scores};
-use photongrid::pipeline::{self, PhaseTimes};
-use photongrid::progress::Progress;
-use photongrid::render::{DirectLighting, Method};
-use photongrid::settings::Settings;
 use anyhow::{anyhow, bail, Context, Result};
+use photongrid::pipeline::{self, PhaseTimes, RenderRequest};
+use photongrid::progress::Progress;
+use photongrid::settings::Settings;
+use photongrid::settings::{DirectLighting, Method};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -107,7 +108,7 @@ fn classic(s: &mut Settings, method: Method) {
     s.method = method;
     s.gather = 0;
     s.caustic_photons = 0;
-    s.grid = photongrid::grid::GridMode::Planes;
+    s.grid = photongrid::settings::GridMode::Planes;
 }
 
 /// The preset called `name`.
@@ -125,28 +126,27 @@ pub fn method(name: &str) -> Result<&'static MethodPreset> {
 /// How much work one run may do: the x axis of the matrix.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
-pub enum Budget {
+pub enum Workload {
     /// Emit this many photon paths.
     Photons(usize),
-    /// Stop after this many seconds (needs a time-limited render, which the renderer does not
-    /// have yet: such a matrix is rejected by [`Matrix::validate`]).
+    /// Render with this wall-time budget (`--time`) at the method's other settings.
     Seconds(f64),
 }
 
-impl Budget {
+impl Workload {
     /// Short label: `250k photons`, `5 s`.
     pub fn label(&self) -> String {
         match *self {
-            Budget::Photons(n) => format!("{} photons", human_count(n)),
-            Budget::Seconds(s) => format!("{s} s"),
+            Workload::Photons(n) => format!("{} photons", human_count(n)),
+            Workload::Seconds(s) => format!("{s} s"),
         }
     }
 
     /// Sort key (photon budgets first, then time budgets, each ascending).
     fn order(&self) -> (u8, f64) {
         match *self {
-            Budget::Photons(n) => (0, n as f64),
-            Budget::Seconds(s) => (1, s),
+            Workload::Photons(n) => (0, n as f64),
+            Workload::Seconds(s) => (1, s),
         }
     }
 }
@@ -185,7 +185,7 @@ pub struct Matrix {
     /// Method names (see [`METHODS`]).
     pub methods: Vec<String>,
     /// Budgets.
-    pub budgets: Vec<Budget>,
+    pub budgets: Vec<Workload>,
     /// Scene names (file stems).
     pub scenes: Vec<String>,
     /// Seeds.
@@ -204,7 +204,7 @@ impl Matrix {
         match preset {
             Preset::Small => Matrix {
                 methods: vec!["knn".into(), "adaptive".into(), "default".into()],
-                budgets: vec![Budget::Photons(250_000), Budget::Photons(1_000_000)],
+                budgets: vec![Workload::Photons(250_000), Workload::Photons(1_000_000)],
                 scenes,
                 seeds: vec![0, 1],
                 width: 320,
@@ -215,7 +215,7 @@ impl Matrix {
                 methods: METHODS.iter().map(|m| m.name.to_string()).collect(),
                 budgets: [250_000, 1_000_000, 2_000_000, 4_000_000]
                     .into_iter()
-                    .map(Budget::Photons)
+                    .map(Workload::Photons)
                     .collect(),
                 scenes,
                 seeds: vec![0, 1, 2],
@@ -243,11 +243,12 @@ impl Matrix {
         }
         for b in &self.budgets {
             match *b {
-                Budget::Photons(0) => bail!("a photon budget must be at least 1"),
-                Budget::Photons(_) => {}
-                Budget::Seconds(_) => bail!(
-                    "time budgets need a time-limited render, which photongrid does not have yet; use photon counts"
-                ),
+                Workload::Photons(0) => bail!("a photon budget must be at least 1"),
+                Workload::Photons(_) => {}
+                Workload::Seconds(s) if !(s > 0.0 && s.is_finite()) => {
+                    bail!("a time budget must be a positive number of seconds")
+                }
+                Workload::Seconds(_) => {}
             }
         }
         if self.width == 0 || self.height == 0 {
@@ -283,8 +284,8 @@ impl Matrix {
         let mut s = Settings::default();
         (method(&key.method)?.apply)(&mut s);
         match key.budget {
-            Budget::Photons(n) => s.photons = n,
-            Budget::Seconds(_) => bail!("time budgets are not supported yet"),
+            Workload::Photons(n) => s.photons = n,
+            Workload::Seconds(t) => s.time = Some(t),
         }
         s.seed = key.seed;
         s.width = Some(key.width);
@@ -292,7 +293,7 @@ impl Matrix {
         if let Some(spp) = self.spp {
             s.spp = spp;
         }
-        s.validate().map_err(|e| anyhow!(e))?;
+        s.validate().map_err(|e| anyhow!("{}: {e}", key.method))?;
         Ok(s)
     }
 }
@@ -304,8 +305,8 @@ pub struct RunKey {
     pub scene: String,
     /// Method name.
     pub method: String,
-    /// Budget.
-    pub budget: Budget,
+    /// Workload.
+    pub budget: Workload,
     /// Seed.
     pub seed: u64,
     /// Image width.
@@ -647,6 +648,8 @@ pub struct BenchOptions {
     pub overwrite: bool,
     /// The command line, recorded in the outputs.
     pub command: String,
+    /// Also write every run's images into `OUT/images/` (as `render` would write them).
+    pub images: bool,
 }
 
 /// Totals of one invocation.
@@ -751,7 +754,11 @@ pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<Summary> {
                     "[{n}/{total}] {key}: settings changed since bench.json, re-running"
                 ));
             }
-            let record = run_one(&scene, key, &settings, load_s, &refs, &cameras)?;
+            let images = opts.images.then(|| opts.out.join("images"));
+            if let Some(dir) = &images {
+                std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
+            }
+            let record = run_one(&scene, key, &settings, load_s, &refs, &cameras, images.as_deref())?;
             let cams: Vec<String> = record
                 .cameras
                 .iter()
@@ -788,6 +795,7 @@ fn run_one(
     load_s: f64,
     refs: &[LoadedRef],
     cameras: &[&photongrid::scene::Camera],
+    images: Option<&Path>,
 ) -> Result<RunRecord> {
     let peak_memory_reset = reset_peak_memory();
     let load_average = load_average();
@@ -796,16 +804,26 @@ fn run_one(
         load: load_s,
         ..PhaseTimes::default()
     };
-    let start = Instant::now();
-    let prepared =
-        pipeline::prepare(scene, settings, &progress, &mut times).with_context(|| format!("{key}: preparing"))?;
-    let prepare_s = start.elapsed().as_secs_f64();
-    let mut results = Vec::new();
+    let (mut results, mut photon_map_bytes, mut photons) = (Vec::new(), 0, serde_json::Value::Null);
     for (r, camera) in refs.iter().zip(cameras) {
-        let t = Instant::now();
-        let film = pipeline::render_camera(scene, &prepared, camera, settings, &progress);
-        let render_s = t.elapsed().as_secs_f64();
-        times.render += render_s;
+        // One request per camera: what `photongrid render --camera I` runs, timed alike.
+        let start = Instant::now();
+        let request = RenderRequest {
+            scene,
+            cameras: std::slice::from_ref(camera),
+            settings,
+            start,
+        };
+        let rendered = pipeline::render(&request, &progress, None).with_context(|| format!("{key}: rendering"))?;
+        let seconds = start.elapsed().as_secs_f64();
+        let film = &rendered.films[0];
+        if let Some(dir) = images {
+            let path = dir.join(image_name(key, camera.index));
+            photongrid::output::write_exr(&path, film, photongrid::output::AovSelection::default())?;
+        }
+        add_times(&mut times, &rendered.report.seconds);
+        photon_map_bytes = rendered.report.memory.photon_map_bytes.max(photon_map_bytes);
+        photons = serde_json::to_value(&rendered.report.photons)?;
         let mut img = Image::new(film.width as usize, film.height as usize);
         for (d, c) in img.data.iter_mut().zip(&film.color) {
             *d = c.to_array();
@@ -816,25 +834,48 @@ fn run_one(
         results.push(CameraResult {
             index: camera.index,
             name: camera.name.clone(),
-            render_seconds: render_s,
-            seconds: load_s + prepare_s + render_s,
+            render_seconds: rendered.report.seconds.render,
+            seconds: load_s + seconds,
             unmasked: score(None)?,
             masked: r.mask.as_deref().map(|m| score(Some(m))).transpose()?,
         });
     }
-    times.total = load_s + prepare_s + times.render;
+    times.total = load_s + results.iter().map(|c| c.seconds - load_s).sum::<f64>();
     Ok(RunRecord {
         key: key.clone(),
         settings: settings.clone(),
-        seconds: times.clone(),
+        seconds: times,
         peak_memory_bytes: pipeline::peak_memory_bytes(),
         peak_memory_reset,
-        photon_map_bytes: prepared.map.memory_bytes(),
-        photons: serde_json::to_value(&prepared.photon_stats)?,
+        photon_map_bytes,
+        photons,
         threads: rayon::current_num_threads(),
         load_average,
         cameras: results,
     })
+}
+
+/// Add a render's phase times (all but load and total) to `t`.
+fn add_times(t: &mut PhaseTimes, r: &PhaseTimes) {
+    t.bvh += r.bvh;
+    t.photons += r.photons;
+    t.grids += r.grids;
+    t.irradiance += r.irradiance;
+    t.build += r.build;
+    t.render += r.render;
+    t.write += r.write;
+}
+
+/// File name of a run's image for one camera (`--images`).
+pub fn image_name(key: &RunKey, camera: usize) -> String {
+    let workload = match key.budget {
+        Workload::Photons(n) => human_count(n),
+        Workload::Seconds(s) => format!("{s}s"),
+    };
+    photongrid::output::safe_name(&format!(
+        "{}_cam{camera}_{}_{workload}_seed{}_{}x{}",
+        key.scene, key.method, key.seed, key.width, key.height
+    )) + ".exr"
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -874,7 +915,7 @@ impl Spread {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Point {
     /// The budget.
-    pub budget: Budget,
+    pub budget: Workload,
     /// Seconds (of the camera, or of the scene's run).
     pub seconds: Spread,
     /// Masked block_rel_rmse (unmasked if the reference has no mask).
@@ -916,8 +957,8 @@ fn series_order(runs: &[RunRecord]) -> Vec<String> {
     v.into_iter().map(|(_, l)| l).collect()
 }
 
-fn sorted_budgets(runs: &[RunRecord]) -> Vec<Budget> {
-    let mut b: Vec<Budget> = Vec::new();
+fn sorted_budgets(runs: &[RunRecord]) -> Vec<Workload> {
+    let mut b: Vec<Workload> = Vec::new();
     for r in runs {
         if !b.contains(&r.key.budget) {
             b.push(r.key.budget);
@@ -976,7 +1017,7 @@ pub fn cost_series(runs: &[RunRecord]) -> Vec<(String, Vec<(usize, Spread)>)> {
         .map(|series| {
             let mut by: BTreeMap<usize, BTreeMap<u64, Vec<f64>>> = BTreeMap::new();
             for r in runs.iter().filter(|r| label(&r.key) == series) {
-                if let Budget::Photons(p) = r.key.budget {
+                if let Workload::Photons(p) = r.key.budget {
                     by.entry(p)
                         .or_default()
                         .entry(r.key.seed)
@@ -1367,7 +1408,7 @@ mod tests {
     fn synthetic(methods: &[&str], photons: &[usize], seeds: u64) -> BenchFile {
         let m = Matrix {
             methods: methods.iter().map(|s| s.to_string()).collect(),
-            budgets: photons.iter().map(|&p| Budget::Photons(p)).collect(),
+            budgets: photons.iter().map(|&p| Workload::Photons(p)).collect(),
             scenes: vec!["alpha".into(), "beta".into()],
             seeds: (0..seeds).collect(),
             width: 64,
@@ -1378,7 +1419,9 @@ mod tests {
             .expand()
             .into_iter()
             .map(|key| {
-                let Budget::Photons(p) = key.budget else { unreachable!() };
+                let Workload::Photons(p) = key.budget else {
+                    unreachable!()
+                };
                 let gain = if key.method == "adaptive" { 0.8 } else { 1.0 };
                 let err = gain * 0.05 * (250_000.0 / p as f64).sqrt() * (1.0 + 0.05 * key.seed as f64);
                 let secs = 0.5 + p as f64 * 1e-6;
@@ -1451,7 +1494,7 @@ mod tests {
     fn matrix_expands_to_the_product() {
         let m = Matrix {
             methods: vec!["knn".into(), "adaptive".into(), "gather8".into()],
-            budgets: vec![Budget::Photons(1000), Budget::Photons(2000)],
+            budgets: vec![Workload::Photons(1000), Workload::Photons(2000)],
             scenes: vec!["a".into(), "b".into()],
             seeds: vec![0, 1, 7],
             width: 32,
@@ -1490,8 +1533,10 @@ mod tests {
     #[test]
     fn invalid_matrices_are_rejected() {
         let mut m = Matrix::preset(Preset::Small, vec!["s".into()]);
-        m.budgets.push(Budget::Seconds(5.0));
-        assert!(m.validate().unwrap_err().to_string().contains("time budgets"));
+        m.budgets.push(Workload::Seconds(5.0));
+        m.validate().unwrap();
+        m.budgets.push(Workload::Seconds(-1.0));
+        assert!(m.validate().unwrap_err().to_string().contains("time budget"));
         let mut m = Matrix::preset(Preset::Small, vec!["s".into()]);
         m.methods.push("bogus".into());
         assert!(m.validate().is_err());
@@ -1503,10 +1548,13 @@ mod tests {
     }
 
     #[test]
-    fn budget_json_leaves_room_for_time() {
-        assert_eq!(serde_json::to_string(&Budget::Photons(5)).unwrap(), r#"{"photons":5}"#);
+    fn workload_json_has_photons_and_time() {
         assert_eq!(
-            serde_json::to_string(&Budget::Seconds(2.5)).unwrap(),
+            serde_json::to_string(&Workload::Photons(5)).unwrap(),
+            r#"{"photons":5}"#
+        );
+        assert_eq!(
+            serde_json::to_string(&Workload::Seconds(2.5)).unwrap(),
             r#"{"seconds":2.5}"#
         );
         assert_eq!(human_count(250_000), "250k");

@@ -4,16 +4,14 @@
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
 use photongrid::film::Film;
-use photongrid::grid::{GridMode, GridQuantity};
 use photongrid::output::{self, output_for, AovSelection};
+use photongrid::pipeline::{self, RenderRequest, Rendered};
+use photongrid::progress::Progress;
+use photongrid::scene::gltf::{load_with, LoadOptions};
+use photongrid::settings::parse_seconds_or_zero;
+use photongrid::Settings;
 use photongrid_cli::metrics::read_exr_rgb;
 use photongrid_cli::progress::{emit_json, Display, ProgressMode};
-use photongrid::pipeline::{self, PhaseTimes};
-use photongrid::progress::Progress;
-use photongrid::render::{DirectLighting, Method};
-use photongrid::scene::gltf::{load_with, LoadOptions};
-use photongrid::settings::{ThresholdChoice, WaveletChoice};
-use photongrid::Settings;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -77,9 +75,16 @@ struct BenchArgs {
     /// Methods, comma-separated: knn, knn-k500, adaptive, single-map-knn, single-map-adaptive, gather8.
     #[arg(long, value_delimiter = ',')]
     methods: Vec<String>,
-    /// Photon counts, comma-separated (e.g. 250000,1000000,4000000).
-    #[arg(long, value_delimiter = ',')]
+    /// Photon counts per pass, comma-separated (e.g. 250k,1M,4M).
+    #[arg(long, value_delimiter = ',', value_parser = photongrid::settings::parse_count)]
     photons: Vec<usize>,
+    /// Wall-time budgets in seconds, comma-separated (e.g. 5,15,60): each run renders with
+    /// `--time` at the method's settings. Combined with --photons, both kinds of runs are made.
+    #[arg(long = "time", value_delimiter = ',', value_parser = photongrid::settings::parse_seconds)]
+    times: Vec<f64>,
+    /// Also write every run's images into OUT/images/.
+    #[arg(long)]
+    images: bool,
     /// Number of seeds (0, 1, ... N-1).
     #[arg(long)]
     seeds: Option<u64>,
@@ -117,119 +122,47 @@ struct RenderArgs {
     /// The scene (.glb or .gltf).
     scene: PathBuf,
     /// Camera node name or glTF camera index; repeat for several, or "all". Default: the first camera.
-    #[arg(short, long = "camera", value_name = "NAME|INDEX|all")]
+    #[arg(
+        short,
+        long = "camera",
+        value_name = "NAME|INDEX|all",
+        help_heading = "Input and output"
+    )]
     cameras: Vec<String>,
     /// Output EXR. With several cameras, "{camera}" in the path is replaced by the camera name
     /// (otherwise the name is appended before the extension).
-    #[arg(short, long, value_name = "OUT.exr")]
+    #[arg(short, long, value_name = "OUT.exr", help_heading = "Input and output")]
     output: PathBuf,
-    /// Photon paths to emit.
-    #[arg(long, default_value_t = Settings::default().photons)]
-    photons: usize,
-    /// Photons per radiance estimate (k nearest neighbours).
-    #[arg(long, visible_alias = "neighbors", default_value_t = Settings::default().neighbours)]
-    neighbours: usize,
-    /// Camera rays per pixel (jittered, 1-pixel box filter).
-    #[arg(long, default_value_t = Settings::default().spp)]
-    spp: u32,
-    /// Random seed: the same seed and settings give the same image.
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
-    threads: Option<usize>,
-    /// Image width (default: the camera's aspect at 480 lines).
-    #[arg(long)]
-    width: Option<u32>,
-    /// Image height.
-    #[arg(long)]
-    height: Option<u32>,
-    /// Direct light from shadow rays, or from photons like the paper's single photon map.
-    #[arg(long, value_enum, default_value_t = DirectLighting::ShadowRays)]
-    direct: DirectLighting,
-    /// Shadow rays per emissive-surface light evaluation.
-    #[arg(long, default_value_t = Settings::default().light_samples)]
-    light_samples: u32,
-    /// Photon bounces before a path stops.
-    #[arg(long, default_value_t = Settings::default().max_photon_depth)]
-    max_photon_depth: u32,
-    /// Mirror/glass bounces followed from the camera.
-    #[arg(long, default_value_t = Settings::default().max_specular_depth)]
-    max_specular_depth: u32,
-    /// Largest photon gather radius, as a fraction of the scene diagonal.
-    #[arg(long, default_value_t = Settings::default().max_radius_rel)]
-    max_radius: f32,
-    /// Radiance estimate: plain k nearest neighbours, or the paper's grid-adaptive radius.
-    #[arg(long, value_enum, default_value_t = Settings::default().method)]
-    method: Method,
-    /// Grids for the adaptive method: planes where there are planes and voxels where needed
-    /// (auto), planes only (the paper), voxels for everything, or none.
-    #[arg(long, value_enum, default_value_t = Settings::default().grid)]
-    grid: GridMode,
-    /// Cells along the longer side of each plane's count grid.
-    #[arg(long, default_value_t = Settings::default().grid_res)]
-    grid_res: usize,
-    /// Wavelet for the photon-count textures.
-    #[arg(long, value_enum, default_value_t = Settings::default().wavelet)]
-    wavelet: WaveletChoice,
-    /// Thresholding of wavelet details: the paper's fixed value, or set from the data.
-    #[arg(long, value_enum, default_value_t = Settings::default().threshold)]
-    threshold: ThresholdChoice,
-    /// The fixed threshold (photon counts) for --threshold fixed.
-    #[arg(long, default_value_t = Settings::default().threshold_value)]
-    threshold_value: f32,
-    /// Wavelet levels (at most).
-    #[arg(long, default_value_t = Settings::default().wavelet_levels)]
-    wavelet_levels: usize,
-    /// Share of the kNN radius error kept: r = r_a + alpha (r_k − r_a).
-    #[arg(long, default_value_t = Settings::default().alpha)]
-    alpha: f32,
-    /// Filtered photons per cell below which the kNN radius is used (shadows).
-    #[arg(long, default_value_t = Settings::default().shadow_count)]
-    shadow_count: f32,
-    /// Whether grid cells count photons or flux.
-    #[arg(long, value_enum, default_value_t = Settings::default().grid_quantity)]
-    grid_quantity: GridQuantity,
-    /// Extra photon paths aimed at mirrors and glass, for caustics (ignored when there are none).
-    #[arg(long, default_value_t = Settings::default().caustic_photons)]
-    caustic_photons: usize,
-    /// Final-gather rays per camera sample (0: show the photon map directly, as the paper).
-    #[arg(long, default_value_t = Settings::default().gather)]
-    gather: u32,
-    /// Progressive rendering: passes of new photons (--photons each) and new camera samples
-    /// (--spp each), averaged. With --time, at most this many.
-    #[arg(long, value_name = "P")]
-    passes: Option<u32>,
-    /// Progressive rendering with a time budget: add passes while the next one is expected to
-    /// end within this wall time, counted from the start (at least one pass runs). Seconds, or
-    /// with a unit: 90s, 2.5m, 1h. The pass count then depends on the machine; --stats reports it.
-    #[arg(long, visible_alias = "time-budget", value_name = "SECONDS", value_parser = parse_seconds)]
-    time: Option<f64>,
-    /// Write the image so far to the output (atomically) every this many seconds while passes
-    /// run, so that a killed render loses little (0: after every pass).
-    #[arg(long, value_name = "SECONDS", value_parser = parse_seconds_or_zero)]
-    checkpoint: Option<f64>,
-    /// Write each plane's count texture before and after the wavelet step (EXR) into this folder.
-    #[arg(long, value_name = "DIR")]
-    dump_grids: Option<PathBuf>,
-    /// Add AOV layers to the EXR: albedo, N, depth, photons (density and radius).
-    #[arg(long)]
-    aovs: bool,
     /// Also write an sRGB PNG preview here (same {camera} rule as --output).
-    #[arg(long, value_name = "PREVIEW.png")]
+    #[arg(long, value_name = "PREVIEW.png", help_heading = "Input and output")]
     png: Option<PathBuf>,
     /// Exposure of the PNG preview in stops.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, help_heading = "Input and output")]
     exposure: f32,
+    /// Add AOV layers to the EXR: albedo, N, depth, photons (density and radius).
+    #[arg(long, help_heading = "Input and output")]
+    aovs: bool,
     /// Write settings, phase seconds, photon counts and peak memory as JSON here.
-    #[arg(long, value_name = "STATS.json")]
+    #[arg(long, value_name = "STATS.json", help_heading = "Input and output")]
     stats: Option<PathBuf>,
-    /// Progress display: bars on a terminal, JSON lines on stderr for programs, or nothing.
-    #[arg(long, value_enum, default_value_t = ProgressMode::Auto)]
-    progress: ProgressMode,
+    /// Write each plane's count texture before and after the wavelet step (EXR) into this folder.
+    #[arg(long, value_name = "DIR", help_heading = "Input and output")]
+    dump_grids: Option<PathBuf>,
+    /// Write the image so far to the output (atomically) every this many seconds while passes
+    /// run, so that a killed render loses little (0: after every pass).
+    #[arg(long, value_name = "SECONDS", value_parser = parse_seconds_or_zero, help_heading = "Input and output")]
+    checkpoint: Option<f64>,
     /// Allow buffers and images outside the scene's folder.
-    #[arg(long)]
+    #[arg(long, help_heading = "Input and output")]
     allow_external_uris: bool,
+    /// Progress display: bars on a terminal, JSON lines on stderr for programs, or nothing.
+    #[arg(long, value_enum, default_value_t = ProgressMode::Auto, help_heading = "Run")]
+    progress: ProgressMode,
+    /// Worker threads (default: all cores).
+    #[arg(long, help_heading = "Run")]
+    threads: Option<usize>,
+    #[command(flatten)]
+    settings: Settings,
 }
 
 #[derive(Args, Debug)]
@@ -337,15 +270,7 @@ fn bench(a: BenchArgs) -> Result<()> {
         }
         return Ok(());
     }
-    if let Some(t) = a.threads {
-        if t == 0 {
-            bail!("--threads must be at least 1");
-        }
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(t)
-            .build_global()
-            .context("setting up the thread pool")?;
-    }
+    set_threads(a.threads)?;
     let scenes = bench::discover(&a.dir, &a.scenes)?
         .into_iter()
         .map(|s| s.name)
@@ -354,8 +279,11 @@ fn bench(a: BenchArgs) -> Result<()> {
     if !a.methods.is_empty() {
         matrix.methods = a.methods.clone();
     }
-    if !a.photons.is_empty() {
-        matrix.budgets = a.photons.iter().map(|&p| bench::Budget::Photons(p)).collect();
+    if !a.photons.is_empty() || !a.times.is_empty() {
+        matrix.budgets = a.photons.iter().map(|&p| bench::Workload::Photons(p)).collect();
+        matrix
+            .budgets
+            .extend(a.times.iter().map(|&t| bench::Workload::Seconds(t)));
     }
     if let Some(n) = a.seeds {
         matrix.seeds = (0..n).collect();
@@ -380,6 +308,7 @@ fn bench(a: BenchArgs) -> Result<()> {
         resume: a.resume,
         overwrite: a.overwrite,
         command,
+        images: a.images,
     };
     let quiet = a.quiet;
     let summary = bench::run(&opts, &mut |line| {
@@ -395,62 +324,6 @@ fn bench(a: BenchArgs) -> Result<()> {
         println!("{}", p.display());
     }
     Ok(())
-}
-
-fn settings_of(a: &RenderArgs) -> Settings {
-    Settings {
-        photons: a.photons,
-        neighbours: a.neighbours,
-        spp: a.spp,
-        seed: a.seed,
-        width: a.width,
-        height: a.height,
-        direct: a.direct,
-        light_samples: a.light_samples,
-        max_photon_depth: a.max_photon_depth,
-        max_specular_depth: a.max_specular_depth,
-        max_radius_rel: a.max_radius,
-        method: a.method,
-        grid: a.grid,
-        grid_res: a.grid_res,
-        wavelet: a.wavelet,
-        threshold: a.threshold,
-        threshold_value: a.threshold_value,
-        wavelet_levels: a.wavelet_levels,
-        alpha: a.alpha,
-        shadow_count: a.shadow_count,
-        grid_quantity: a.grid_quantity,
-        gather: a.gather,
-        caustic_photons: a.caustic_photons,
-        passes: a.passes,
-        time: a.time,
-        ..Settings::default()
-    }
-}
-
-/// Seconds from "90", "90s", "2.5m" or "1h"; must be positive.
-fn parse_seconds(v: &str) -> Result<f64, String> {
-    let s = parse_seconds_or_zero(v)?;
-    if s > 0.0 {
-        Ok(s)
-    } else {
-        Err("must be more than 0 seconds".into())
-    }
-}
-
-/// As [`parse_seconds`], 0 allowed.
-fn parse_seconds_or_zero(v: &str) -> Result<f64, String> {
-    let t = v.trim();
-    let (num, unit) = match t.char_indices().last() {
-        Some((i, 's')) => (&t[..i], 1.0),
-        Some((i, 'm')) => (&t[..i], 60.0),
-        Some((i, 'h')) => (&t[..i], 3600.0),
-        _ => (t, 1.0),
-    };
-    match num.trim().parse::<f64>() {
-        Ok(x) if x >= 0.0 && x.is_finite() => Ok(x * unit),
-        _ => Err(format!("`{v}` is not a duration: use seconds (30, 30s) or 2.5m, 1h")),
-    }
 }
 
 fn check_writable(path: &Path) -> Result<()> {
@@ -471,9 +344,8 @@ fn check_writable(path: &Path) -> Result<()> {
     Ok(())
 }
 
-fn render(a: RenderArgs) -> Result<()> {
-    let start = Instant::now();
-    if let Some(t) = a.threads {
+fn set_threads(threads: Option<usize>) -> Result<()> {
+    if let Some(t) = threads {
         if t == 0 {
             bail!("--threads must be at least 1");
         }
@@ -482,11 +354,16 @@ fn render(a: RenderArgs) -> Result<()> {
             .build_global()
             .context("setting up the thread pool")?;
     }
-    let settings = settings_of(&a);
-    settings.validate().map_err(|e| anyhow::anyhow!(e))?;
+    Ok(())
+}
+
+fn render(a: RenderArgs) -> Result<()> {
+    let start = Instant::now();
+    set_threads(a.threads)?;
+    let settings = &a.settings;
+    settings.validate().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
     let display = Display::new(a.progress);
     let progress = Progress::new(&display);
-    let mut times = PhaseTimes::default();
 
     let phase = progress.phase("load", 0);
     let scene = load_with(
@@ -495,16 +372,11 @@ fn render(a: RenderArgs) -> Result<()> {
             allow_external_uris: a.allow_external_uris,
         },
     )?;
-    times.load = phase.finish();
+    let load_seconds = phase.finish();
     for w in scene.report.approximated.iter().chain(&scene.report.ignored) {
         tracing::warn!("{}: {w}", a.scene.display());
     }
-    let keys = if a.cameras.is_empty() {
-        vec![]
-    } else {
-        a.cameras.clone()
-    };
-    let mut cameras = pipeline::select_cameras(&scene, &keys)?;
+    let mut cameras = pipeline::select_cameras(&scene, &a.cameras)?;
     if a.cameras.is_empty() {
         cameras.truncate(1);
     }
@@ -547,84 +419,61 @@ fn render(a: RenderArgs) -> Result<()> {
         every,
         write: &mut write_checkpoint,
     });
-    let result = pipeline::render_passes(&scene, &cameras, &settings, start, &progress, &mut times, checkpoint)?;
-    if let (Some(dir), Some(g)) = (&a.dump_grids, result.grids.as_ref().and_then(|g| g.planes.as_ref())) {
+    let request = RenderRequest {
+        scene: &scene,
+        cameras: &cameras,
+        settings,
+        start,
+    };
+    let Rendered {
+        films,
+        mut report,
+        grids,
+    } = pipeline::render(&request, &progress, checkpoint)?;
+    report.seconds.load = load_seconds;
+    if let (Some(dir), Some(g)) = (&a.dump_grids, grids.as_ref().and_then(|g| g.planes.as_ref())) {
         std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
         for (i, (raw, filtered)) in g.raw.iter().zip(&g.filtered).enumerate() {
             output::write_field_exr(&dir.join(format!("plane{i:03}_counts.exr")), raw)?;
             output::write_field_exr(&dir.join(format!("plane{i:03}_filtered.exr")), filtered)?;
         }
     }
-    let mut camera_stats = Vec::new();
-    for ((camera, (out, png)), film) in cameras.iter().zip(&outputs).zip(&result.films) {
+    for ((camera, (out, png)), film) in report.cameras.iter_mut().zip(&outputs).zip(&films) {
         let t = Instant::now();
         output::write_exr(out, film, aovs)?;
         if let Some(p) = png {
             output::write_png(p, film, a.exposure)?;
         }
-        times.write += t.elapsed().as_secs_f64();
-        let nonfinite = film.nonfinite();
-        if nonfinite > 0 {
-            tracing::warn!("{}: {nonfinite} pixels are not finite", out.display());
+        report.seconds.write += t.elapsed().as_secs_f64();
+        if camera.nonfinite_pixels > 0 {
+            tracing::warn!("{}: {} pixels are not finite", out.display(), camera.nonfinite_pixels);
         }
-        camera_stats.push(serde_json::json!({
-            "camera": camera.name, "index": camera.index, "output": out, "png": png,
-            "width": film.width, "height": film.height,
-            "mean_rgb": film.mean().to_array(), "nonfinite_pixels": nonfinite,
-        }));
-        if a.progress == ProgressMode::Json {
-            emit_json(&serde_json::json!({"event": "output", "camera": camera.name, "path": out}));
+        camera.output = Some(out.clone());
+        camera.png = png.clone();
+        if json_progress {
+            emit_json(&serde_json::json!({"event": "output", "camera": camera.camera, "path": out}));
         }
     }
-    times.total = start.elapsed().as_secs_f64();
-    if a.progress != ProgressMode::Quiet {
+    report.seconds.total = start.elapsed().as_secs_f64();
+    report.cpu_seconds = pipeline::cpu_seconds();
+    if a.progress == ProgressMode::Auto {
+        let phases: Vec<String> = report
+            .seconds
+            .phases()
+            .iter()
+            .map(|(name, s)| format!("{name} {s:.2} s"))
+            .collect();
+        let n = report.passes.count;
         eprintln!(
-            "{}: {} pass{} · load {:.2} s · bvh {:.2} s · photons {:.2} s · build {:.2} s · render {:.2} s · write {:.2} s · total {:.2} s",
+            "{}: {n} pass{} · {} · total {:.2} s",
             a.scene.display(),
-            result.passes,
-            if result.passes == 1 { "" } else { "es" },
-            times.load,
-            times.bvh,
-            times.photons,
-            times.build,
-            times.render,
-            times.write,
-            times.total
+            if n == 1 { "" } else { "es" },
+            phases.join(" · "),
+            report.seconds.total
         );
     }
     if let Some(path) = &a.stats {
-        let stats = serde_json::json!({
-            "scene": a.scene,
-            "version": env!("CARGO_PKG_VERSION"),
-            "settings": settings,
-            "threads": rayon::current_num_threads(),
-            "seconds": times,
-            "photons": result.photon_stats,
-            "passes": {
-                "count": result.passes,
-                "stopped_by": result.stop,
-                "seconds": result.pass_seconds,
-                "checkpoints": result.checkpoints,
-            },
-            "cpu_seconds": pipeline::cpu_seconds(),
-            "memory": {
-                "peak_bytes": pipeline::peak_memory_bytes(),
-                "photon_map_bytes": result.photon_map_bytes,
-                "bvh_bytes": result.bvh_bytes,
-            },
-            "cameras": camera_stats,
-            "grids": result.grids.as_ref().map(|g| serde_json::json!({
-                "choice": g.choice,
-                "memory_bytes": g.memory_bytes(),
-                // Per plane: does the wavelet step change the photon total (the paper's
-                // "brightening")? mean_after/mean_before should stay 1.
-                "planes": g.planes.as_ref().map(|p| p.reports.iter().zip(&p.set.planes).map(|(r, pl)| serde_json::json!({
-                    "cells": [pl.res_u, pl.res_v], "mean_before": r.mean_before, "mean_after": r.mean_after,
-                    "sigma": r.sigma, "kept_fraction": r.kept_fraction,
-                })).collect::<Vec<_>>()),
-            })),
-        });
-        output::write_atomic(path, serde_json::to_string_pretty(&stats)?.as_bytes())?;
+        output::write_atomic(path, serde_json::to_string_pretty(&report)?.as_bytes())?;
     }
     Ok(())
 }
@@ -783,7 +632,7 @@ fn info(path: &Path, json: bool) -> Result<()> {
         on_plane,
         scene.triangles.len()
     );
-    let grids = photongrid::grid::Grids::build(&scene, &[], &[], &Settings::default());
+    let grids = photongrid::grid::Grids::build(&scene, &[], &[], &(&Settings::default()).into());
     println!("  grids chosen by --grid auto (the default):");
     for c in &grids.choice {
         println!("    - {c}");

@@ -42,8 +42,8 @@
 
 use std::fmt;
 
-use serde::{Deserialize, Deserializer, Serialize};
 use exr::prelude::{read_all_flat_layers_from_file, FlatSamples};
+use serde::{Deserialize, Deserializer, Serialize};
 use std::path::Path;
 
 /// Rec.709 luminance weights for linear R, G, B.

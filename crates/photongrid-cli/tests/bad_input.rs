@@ -1,7 +1,6 @@
 //! The real binary on broken files and bad options: a non-zero exit, no panic, and a message
 //! naming the file and the element (or the option). Also the help texts and one real render.
 
-
 use photongrid_testkit::*;
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};

@@ -224,7 +224,7 @@ fn unknown_option_names_job_and_key() {
     let e2 = r["units"][2]["error"].as_str().unwrap();
     assert!(e2.contains("job 2") && e2.contains("NoSuchCamera"), "{e2}");
     let e3 = r["units"][3]["error"].as_str().unwrap();
-    assert!(e3.contains("job 3") && e3.contains("--spp"), "{e3}");
+    assert!(e3.contains("job 3") && e3.contains("`spp` must be at least 1"), "{e3}");
 
     // A bad [defaults] key is an error for the whole file, before anything runs.
     std::fs::write(

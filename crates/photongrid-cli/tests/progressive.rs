@@ -2,14 +2,13 @@
 //! time budget and checkpoints. (The SPPM radius update and the budget rule have unit tests
 //! beside their code: `render::sppm`, `render::progressive`.)
 
-
-use photongrid_testkit::*;
 use photongrid::film::Film;
-use photongrid::pipeline::{prepare, render_camera, render_passes, select_cameras, Passes, PhaseTimes};
+use photongrid::pipeline::{prepare, render, render_camera, select_cameras, PhaseTimes, RenderRequest, Rendered};
 use photongrid::progress::Progress;
-use photongrid::render::{DirectLighting, Method};
 use photongrid::scene::Scene;
+use photongrid::settings::{DirectLighting, Method};
 use photongrid::Settings;
+use photongrid_testkit::*;
 use std::f64::consts::PI;
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
@@ -17,19 +16,15 @@ use std::time::Instant;
 
 const BIN: &str = env!("CARGO_BIN_EXE_photongrid");
 
-fn passes(scene: &Scene, settings: &Settings) -> Passes {
+fn passes(scene: &Scene, settings: &Settings) -> Rendered {
     let cams = select_cameras(scene, &[]).unwrap();
-    let mut times = PhaseTimes::default();
-    render_passes(
+    let request = RenderRequest {
         scene,
-        &cams[..1],
+        cameras: &cams[..1],
         settings,
-        Instant::now(),
-        &Progress::quiet(),
-        &mut times,
-        None,
-    )
-    .unwrap()
+        start: Instant::now(),
+    };
+    render(&request, &Progress::quiet(), None).unwrap()
 }
 
 fn bits(f: &Film) -> Vec<[u32; 3]> {
@@ -67,9 +62,9 @@ fn same_seed_and_passes_same_image_whatever_the_thread_count() {
                 .install(|| passes(&scene, &settings))
         };
         let (a, b) = (run(1), run(2));
-        assert_eq!((a.passes, b.passes), (3, 3));
-        assert_eq!(a.photon_stats.emitted, 3 * 20_000);
-        assert!(a.films[0].mean().max_element() > 0.0, "{method:?}");
+        assert_eq!((a.report.passes.count, b.report.passes.count), (3, 3));
+        assert_eq!(a.report.photons.emitted, 3 * 20_000);
+        assert!(a.films[0].mean().iter().any(|&m| m > 0.0), "{method:?}");
         assert_eq!(a.films[0].nonfinite(), 0, "{method:?}");
         assert!(
             bits(&a.films[0]) == bits(&b.films[0]),
@@ -93,7 +88,7 @@ fn one_pass_is_the_plain_render() {
     for method in [Method::Knn, Method::Adaptive] {
         let settings = small(method);
         let progressive = passes(&scene, &settings);
-        assert_eq!(progressive.passes, 1);
+        assert_eq!(progressive.report.passes.count, 1);
         let cams = select_cameras(&scene, &[]).unwrap();
         let prepared = prepare(&scene, &settings, &Progress::quiet(), &mut PhaseTimes::default()).unwrap();
         let plain = render_camera(&scene, &prepared, cams[0], &settings, &Progress::quiet());
@@ -157,7 +152,7 @@ fn sppm_plane_under_point_light_matches_closed_form() {
         ..Settings::default()
     };
     let result = passes(&scene, &settings);
-    assert_eq!(result.passes, 6);
+    assert_eq!(result.report.passes.count, 6);
     let film = &result.films[0];
     let radiance = |x: f64, z: f64| {
         let d2 = x * x + z * z + LIGHT_H * LIGHT_H;

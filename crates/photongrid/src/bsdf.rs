@@ -1,6 +1,11 @@
-//! Scattering at surfaces: Lambert, Schlick mirror, smooth dielectric. Used by both the photon
-//! tracer and the camera pass, so each formula lives here once.
+//! Scattering at surfaces: Lambert, Schlick mirror, smooth dielectric. Used by the photon
+//! tracer and the camera pass alike, so each formula lives here once; [`specular_branches`]
+//! and [`sample_specular`] are the one specular step (Fresnel branch choice and Beer
+//! absorption) every path uses.
 
+use crate::sampling::Rng;
+use crate::scene::Surface;
+use crate::surface::SurfacePoint;
 use crate::Rgb;
 use glam::Vec3;
 
@@ -86,6 +91,95 @@ pub fn dielectric_branches(d: Vec3, ng: Vec3, ior: f32, tint: Rgb) -> (SpecularS
         }
         _ => (SpecularSample { weight: Rgb::ONE, ..r }, None),
     }
+}
+
+/// A scattering direction and the throughput weight it carries.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Scatter {
+    /// New unit direction.
+    pub direction: Vec3,
+    /// Throughput multiplier.
+    pub weight: Rgb,
+}
+
+/// Beer–Lambert transmittance of the path inside a dielectric that ends at this hit: the ray
+/// hit the back face, so it travelled `distance` through the material.
+fn absorption(surface: &Surface, sp: &SurfacePoint, distance: f32) -> Rgb {
+    match surface {
+        Surface::Dielectric {
+            absorption: Some(sigma),
+            ..
+        } if sp.backface => (-*sigma * distance).exp(),
+        _ => Rgb::ONE,
+    }
+}
+
+/// The specular branches of a ray `d` hitting a mirror or glass at `sp`, before absorption:
+/// (reflection, refraction if any), Fresnel-weighted. None for a diffuse surface.
+fn fresnel_branches(surface: &Surface, d: Vec3, sp: &SurfacePoint) -> Option<(Scatter, Option<Scatter>)> {
+    let scatter = |s: SpecularSample| Scatter {
+        direction: s.direction,
+        weight: s.weight,
+    };
+    match surface {
+        Surface::Lambert { .. } => None,
+        Surface::Mirror { f0 } => {
+            let n = sp.facing_shading_normal;
+            let r = Scatter {
+                direction: reflect(d, n),
+                weight: fresnel_schlick(*f0, -d.dot(n)),
+            };
+            Some((r, None))
+        }
+        Surface::Dielectric { ior, tint, .. } => {
+            let (r, t) = dielectric_branches(d, sp.geometric_normal, *ior, *tint);
+            Some((scatter(r), t.map(scatter)))
+        }
+    }
+}
+
+/// The specular branches of a ray `d` hitting a mirror or glass at `sp` after travelling
+/// `distance`: (reflection, refraction if any), each weighted by Fresnel and by absorption
+/// inside glass. None for a diffuse surface.
+pub fn specular_branches(
+    surface: &Surface,
+    d: Vec3,
+    sp: &SurfacePoint,
+    distance: f32,
+) -> Option<(Scatter, Option<Scatter>)> {
+    let (r, t) = fresnel_branches(surface, d, sp)?;
+    let a = absorption(surface, sp, distance);
+    let absorbed = |s: Scatter| Scatter {
+        weight: a * s.weight,
+        ..s
+    };
+    Some((absorbed(r), t.map(absorbed)))
+}
+
+/// One specular branch, chosen by Fresnel where there are two (reflection with probability
+/// F, each weight divided by its probability, so the estimate stays unbiased), with
+/// absorption inside glass; a random number is drawn only where there is a choice. None for a
+/// diffuse surface.
+pub fn sample_specular(surface: &Surface, d: Vec3, sp: &SurfacePoint, distance: f32, rng: &mut Rng) -> Option<Scatter> {
+    let (r, t) = fresnel_branches(surface, d, sp)?;
+    let chosen = match t {
+        Some(t) => {
+            let pr = r.weight.x; // F, the same in every channel
+            if rng.uniform() >= pr {
+                Scatter {
+                    weight: t.weight / (1.0 - pr),
+                    ..t
+                }
+            } else {
+                Scatter { weight: Rgb::ONE, ..r }
+            }
+        }
+        None => r,
+    };
+    Some(Scatter {
+        weight: absorption(surface, sp, distance) * chosen.weight,
+        ..chosen
+    })
 }
 
 #[cfg(test)]

@@ -43,9 +43,16 @@ impl Film {
         }
     }
 
-    /// Mean of the colour channels over all pixels.
-    pub fn mean(&self) -> Rgb {
-        self.color.iter().copied().sum::<Rgb>() / self.color.len().max(1) as f32
+    /// Mean of the colour channels over all pixels, summed in f64 (no overflow to infinity for
+    /// very bright images).
+    pub fn mean(&self) -> [f64; 3] {
+        let mut s = [0.0f64; 3];
+        for c in &self.color {
+            for (a, v) in s.iter_mut().zip(c.to_array()) {
+                *a += v as f64;
+            }
+        }
+        s.map(|v| v / self.color.len().max(1) as f64)
     }
 
     /// Pixels with NaN or infinity.

@@ -2,10 +2,7 @@
 //! optional PNG preview, both written atomically (temporary file, then rename).
 
 use crate::film::Film;
-use exr::prelude::{
-    AnyChannel, AnyChannels, Encoding, FlatSamples, Layer, LayerAttributes,
-    WritableImage,
-};
+use exr::prelude::{AnyChannel, AnyChannels, Encoding, FlatSamples, Layer, LayerAttributes, WritableImage};
 use std::path::{Path, PathBuf};
 
 /// Output failures, naming the file.
@@ -243,7 +240,12 @@ mod tests {
         let layer = &image.layer_data[0];
         assert_eq!((layer.size.width(), layer.size.height()), (5, 3));
         let channel = |name: &str| {
-            let c = layer.channel_data.list.iter().find(|c| c.name.to_string() == name).unwrap();
+            let c = layer
+                .channel_data
+                .list
+                .iter()
+                .find(|c| c.name.to_string() == name)
+                .unwrap();
             match &c.sample_data {
                 FlatSamples::F32(v) => v.clone(),
                 _ => panic!("{name} is not f32"),

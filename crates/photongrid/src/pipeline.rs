@@ -1,19 +1,22 @@
-//! The pipeline in order: scene → BVH → photons → photon index → camera pass. Each phase is
-//! timed and reported; the result of the first three is shared by every camera rendered.
+//! The orchestrator: one [`RenderRequest`] in, films and one typed [`RenderReport`] out. It
+//! runs the stages in order — BVH → photons (with grids and precomputed irradiance where the
+//! estimate needs them) → photon index → camera pass — for as many progressive passes as the
+//! settings' budget allows, timing each phase. The command line, batch jobs and the bench all
+//! render through [`render`], so what is measured is what users run.
 
 use crate::accel::Accel;
-use crate::estimate::{IrradianceCache, PhotonMap};
+use crate::estimate::{Estimator, IrradianceCache, PhotonMap};
 use crate::film::Film;
-use crate::grid::Grids;
-use crate::photon::{trace_photons, PhotonStats, TraceSettings};
-use crate::photon::{Photon, PhotonKind};
+use crate::grid::{GridParams, Grids};
+use crate::photon::{trace_photons, Photon, PhotonKind, PhotonStats, TraceSettings};
 use crate::progress::Progress;
 use crate::render::progressive::{Accumulator, Budget, Stop};
-use crate::render::{DirectLighting, Method, PhotonData, RenderSettings};
+use crate::render::{PhotonData, RenderSettings};
 use crate::sampling::pass_seed;
 use crate::scene::{Camera, Scene};
-use crate::settings::Settings;
-use serde::Serialize;
+use crate::settings::{DirectLighting, Settings, SettingsError};
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
 use std::time::Instant;
 
 /// Why a render could not run.
@@ -21,7 +24,7 @@ use std::time::Instant;
 pub enum RenderError {
     /// A setting is out of range.
     #[error("invalid settings: {0}")]
-    Settings(String),
+    Settings(#[from] SettingsError),
     /// The photon count would not fit in memory.
     #[error("{photons} photons (plus {caustic} caustic-pass paths) need at least {needed_gib:.1} GiB but only {available_gib:.1} GiB is available; use --photons {suggest} or fewer")]
     TooManyPhotons {
@@ -48,7 +51,7 @@ pub enum RenderError {
 }
 
 /// Seconds spent in each phase.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct PhaseTimes {
     /// Reading and validating the file.
@@ -71,18 +74,180 @@ pub struct PhaseTimes {
     pub total: f64,
 }
 
-/// Everything the camera pass needs that does not depend on the camera.
-pub struct Prepared {
+impl PhaseTimes {
+    /// The phases that took time, in pipeline order, with their seconds (for summaries).
+    pub fn phases(&self) -> Vec<(&'static str, f64)> {
+        [
+            ("load", self.load),
+            ("bvh", self.bvh),
+            ("photons", self.photons),
+            ("grids", self.grids),
+            ("irradiance", self.irradiance),
+            ("build", self.build),
+            ("render", self.render),
+            ("write", self.write),
+        ]
+        .into_iter()
+        .filter(|(_, s)| *s > 0.0)
+        .collect()
+    }
+}
+
+/// What to render: cameras of a loaded scene with settings. The budget's clock (`--time`)
+/// runs from `start`.
+pub struct RenderRequest<'a> {
+    /// The scene.
+    pub scene: &'a Scene,
+    /// The cameras, in output order; every pass's photons serve all of them.
+    pub cameras: &'a [&'a Camera],
+    /// The settings.
+    pub settings: &'a Settings,
+    /// When the time budget started (the process start for the command line).
+    pub start: Instant,
+}
+
+/// How the passes went.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PassReport {
+    /// Passes that ran.
+    pub count: u32,
+    /// Why they stopped.
+    pub stopped_by: Option<Stop>,
+    /// Seconds of each pass (photons and every camera).
+    pub seconds: Vec<f64>,
+    /// Checkpoint images written between passes.
+    pub checkpoints: u32,
+}
+
+/// Memory use.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct MemoryReport {
+    /// Peak resident memory of the process (Linux), if known.
+    pub peak_bytes: Option<u64>,
+    /// The largest pass's photon map.
+    pub photon_map_bytes: usize,
     /// The BVH.
-    pub accel: Accel,
-    /// The photon map.
-    pub map: PhotonMap,
-    /// Photon counts.
-    pub photon_stats: PhotonStats,
-    /// The grids (adaptive method only).
+    pub bvh_bytes: usize,
+    /// The grids.
+    pub grids_bytes: usize,
+}
+
+/// One camera's image.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct CameraReport {
+    /// Camera name.
+    pub camera: String,
+    /// glTF camera index.
+    pub index: usize,
+    /// Resolution.
+    pub width: u32,
+    /// Resolution.
+    pub height: u32,
+    /// Seconds of this camera's passes.
+    pub render_seconds: f64,
+    /// Mean radiance per channel.
+    pub mean_rgb: [f64; 3],
+    /// Pixels that are NaN or infinite.
+    pub nonfinite_pixels: usize,
+    /// Where the caller wrote the image.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub output: Option<PathBuf>,
+    /// Where the caller wrote a preview.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub png: Option<PathBuf>,
+}
+
+/// What the wavelet step did on one plane.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PlaneReport {
+    /// Cells along u and v.
+    pub cells: [usize; 2],
+    /// Mean count before filtering.
+    pub mean_before: f64,
+    /// Mean count after filtering (the paper's "brightening" if it differs).
+    pub mean_after: f64,
+    /// Noise σ estimated from the finest band.
+    pub sigma: f64,
+    /// Share of detail coefficients kept.
+    pub kept_fraction: f64,
+}
+
+/// The grids chosen and what their filtering did.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct GridReport {
+    /// What was chosen and why.
+    pub choice: Vec<String>,
+    /// Memory of the grids.
+    pub memory_bytes: usize,
+    /// Per plane (when plane grids were built).
+    pub planes: Option<Vec<PlaneReport>>,
+}
+
+impl GridReport {
+    fn of(g: &Grids) -> Self {
+        GridReport {
+            choice: g.choice.clone(),
+            memory_bytes: g.memory_bytes(),
+            planes: g.planes.as_ref().map(|p| {
+                p.reports
+                    .iter()
+                    .zip(&p.set.planes)
+                    .map(|(r, pl)| PlaneReport {
+                        cells: [pl.res_u, pl.res_v],
+                        mean_before: r.mean_before,
+                        mean_after: r.mean_after,
+                        sigma: r.sigma as f64,
+                        kept_fraction: r.kept_fraction as f64,
+                    })
+                    .collect()
+            }),
+        }
+    }
+}
+
+/// Everything a render reports: the stats file of `--stats`, batch sidecars and bench records.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RenderReport {
+    /// The scene file.
+    pub scene: PathBuf,
+    /// Renderer version.
+    pub version: String,
+    /// The settings used.
+    pub settings: Settings,
+    /// Worker threads.
+    pub threads: usize,
+    /// Seconds per phase (`load`, `write` and `total` are set by the caller).
+    pub seconds: PhaseTimes,
+    /// Photon counts, summed over passes.
+    pub photons: PhotonStats,
+    /// Passes.
+    pub passes: PassReport,
+    /// CPU seconds of the process so far (Linux), if known.
+    pub cpu_seconds: Option<f64>,
+    /// Memory.
+    pub memory: MemoryReport,
+    /// One entry per camera, in request order.
+    pub cameras: Vec<CameraReport>,
+    /// The grids, when the estimate used them.
+    pub grids: Option<GridReport>,
+}
+
+/// The images and the report of a render, and the grids for inspection (`--dump-grids`).
+pub struct Rendered {
+    /// One image per camera, in request order.
+    pub films: Vec<Film>,
+    /// The report.
+    pub report: RenderReport,
+    /// The accumulated grids, when built.
     pub grids: Option<Grids>,
-    /// Precomputed irradiance for final gathering.
-    pub irradiance: Option<IrradianceCache>,
+}
+
+/// Writes the images so far while passes run (`--checkpoint`).
+pub struct Checkpoint<'a> {
+    /// Seconds between writes (0: after every pass but the last).
+    pub every: f64,
+    /// Write the films (one per camera, in order) after `passes` passes.
+    pub write: &'a mut dyn FnMut(&[Film], u32) -> Result<(), String>,
 }
 
 /// Stored photons per emitted path is at least about one in a closed scene; 24 bytes each,
@@ -140,31 +305,119 @@ pub fn check_photon_memory(photons: usize, caustic: usize) -> Result<(), RenderE
     Ok(())
 }
 
-/// Build the BVH, trace photons and index them (one pass: the photons of pass 0).
-pub fn prepare(
-    scene: &Scene,
-    settings: &Settings,
-    progress: &Progress<'_>,
-    times: &mut PhaseTimes,
-) -> Result<Prepared, RenderError> {
-    settings.validate().map_err(RenderError::Settings)?;
-    // The caustic pass only runs when the scene has a mirror or glass.
-    let caustic_photons = if scene.has_specular() {
+/// Caustic-pass paths for `scene`: none when it has no mirror or glass to aim at, or when no
+/// photons at all are asked for.
+fn caustic_photons(scene: &Scene, settings: &Settings) -> usize {
+    if scene.has_specular() && settings.photons > 0 {
         settings.caustic_photons
     } else {
         0
+    }
+}
+
+/// Render the request's cameras progressively: passes of `settings.photons` new photons (seed
+/// [`pass_seed`] of the pass) and `settings.spp` new samples per pixel, accumulated per camera,
+/// until `settings.passes` passes ran or the next pass would end after `settings.time` seconds
+/// counted from `request.start` ([`Budget`]); neither given: one pass. The same seed and pass
+/// count give the same images whatever the thread count. Each pass's photons serve every
+/// camera, then are dropped. `checkpoint` writes the images so far every `every` seconds,
+/// except after the last pass (the caller writes the final images).
+pub fn render(
+    request: &RenderRequest<'_>,
+    progress: &Progress<'_>,
+    mut checkpoint: Option<Checkpoint<'_>>,
+) -> Result<Rendered, RenderError> {
+    let RenderRequest {
+        scene,
+        cameras,
+        settings,
+        start,
+    } = *request;
+    settings.validate()?;
+    check_photon_memory(settings.photons, caustic_photons(scene, settings))?;
+    let mut report = RenderReport {
+        scene: scene.source.clone(),
+        version: env!("CARGO_PKG_VERSION").to_string(),
+        settings: settings.clone(),
+        threads: rayon::current_num_threads(),
+        ..RenderReport::default()
     };
-    check_photon_memory(settings.photons, caustic_photons)?;
+    let times = &mut report.seconds;
     let accel = build_accel(scene, progress, times);
+    let budget = Budget {
+        passes: settings.passes,
+        time: settings.time,
+    };
+    let accumulation = settings.method.needs().accumulation;
+    let mut accs: Vec<Accumulator> = cameras
+        .iter()
+        .map(|c| {
+            let (w, h) = resolution(c, settings);
+            Accumulator::new(accumulation, w, h, settings.spp)
+        })
+        .collect();
+    let mut render_seconds = vec![0.0; cameras.len()];
     let mut grids = None;
-    let pass = trace_pass(scene, &accel, settings, 0, &mut grids, progress, times);
-    Ok(Prepared {
-        accel,
-        map: pass.map,
-        photon_stats: pass.stats,
-        grids,
-        irradiance: pass.irradiance,
-    })
+    let (mut last, mut last_checkpoint) = (0.0f64, Instant::now());
+    let stop = loop {
+        let done = report.passes.count;
+        if let Err(stop) = budget.next(done, start.elapsed().as_secs_f64(), last) {
+            break stop;
+        }
+        let t = Instant::now();
+        let photons = trace_pass(scene, &accel, settings, done, &mut grids, progress, times);
+        report.photons.add(&photons.stats);
+        report.memory.photon_map_bytes = report.memory.photon_map_bytes.max(photons.map.memory_bytes());
+        let input = PhotonData {
+            estimator: Estimator::for_pass(settings, done, &photons.map, grids.as_ref()),
+            irradiance: photons.irradiance.as_ref(),
+        };
+        for (i, (camera, acc)) in cameras.iter().zip(&mut accs).enumerate() {
+            let seconds = render_pass(scene, &accel, input, done, camera, settings, acc, progress);
+            render_seconds[i] += seconds;
+            times.render += seconds;
+        }
+        drop(photons);
+        last = t.elapsed().as_secs_f64();
+        report.passes.seconds.push(last);
+        report.passes.count += 1;
+        tracing::info!(pass = done + 1, seconds = format!("{last:.3}"), "pass done");
+        if let Some(cp) = checkpoint.as_mut() {
+            let more = budget.next(done + 1, start.elapsed().as_secs_f64(), last).is_ok();
+            if more && last_checkpoint.elapsed().as_secs_f64() >= cp.every {
+                let tw = Instant::now();
+                let films: Vec<Film> = accs.iter().map(Accumulator::film).collect();
+                (cp.write)(&films, done + 1).map_err(RenderError::Checkpoint)?;
+                times.write += tw.elapsed().as_secs_f64();
+                report.passes.checkpoints += 1;
+                last_checkpoint = Instant::now();
+            }
+        }
+    };
+    report.passes.stopped_by = Some(stop);
+    let films: Vec<Film> = accs.iter().map(Accumulator::film).collect();
+    report.cameras = cameras
+        .iter()
+        .zip(&films)
+        .zip(render_seconds)
+        .map(|((c, f), render_seconds)| CameraReport {
+            camera: c.name.clone(),
+            index: c.index,
+            width: f.width,
+            height: f.height,
+            render_seconds,
+            mean_rgb: f.mean(),
+            nonfinite_pixels: f.nonfinite(),
+            output: None,
+            png: None,
+        })
+        .collect();
+    report.memory.bvh_bytes = accel.memory_bytes();
+    report.memory.grids_bytes = grids.as_ref().map(Grids::memory_bytes).unwrap_or(0);
+    report.memory.peak_bytes = peak_memory_bytes();
+    report.grids = grids.as_ref().map(GridReport::of);
+    report.cpu_seconds = cpu_seconds();
+    Ok(Rendered { films, report, grids })
 }
 
 fn build_accel(scene: &Scene, progress: &Progress<'_>, times: &mut PhaseTimes) -> Accel {
@@ -184,10 +437,9 @@ struct PassPhotons {
     irradiance: Option<IrradianceCache>,
 }
 
-/// Trace pass `pass`'s photons (seed [`pass_seed`]) and index them. For the adaptive method
-/// their plane counts are added to `grids` (created at pass 0), which is then refiltered: the
+/// Trace pass `pass`'s photons (seed [`pass_seed`]) and index them. When the estimate needs
+/// grids, their counts are added to `grids` (created at pass 0), which is then refiltered: the
 /// textures hold every pass's photons so far. Phase times are added to `times`.
-#[allow(clippy::too_many_arguments)]
 fn trace_pass(
     scene: &Scene,
     accel: &Accel,
@@ -197,33 +449,34 @@ fn trace_pass(
     progress: &Progress<'_>,
     times: &mut PhaseTimes,
 ) -> PassPhotons {
-    let max_radius = settings.max_radius_rel * scene.bounds.diagonal();
+    let needs = settings.method.needs();
+    let max_radius = settings.max_radius * scene.bounds.diagonal();
+    let gather = settings.effective_gather();
     let trace = TraceSettings {
         photons: settings.photons,
         max_depth: settings.max_photon_depth,
-        store_direct: settings.direct == DirectLighting::Photons || settings.effective_gather() > 0,
+        store_direct: settings.direct == DirectLighting::Photons || gather > 0,
         seed: pass_seed(settings.seed, pass),
-        record_triangles: settings.method == Method::Adaptive,
-        caustic_photons: settings.caustic_photons,
+        record_triangles: needs.photon_triangles,
+        caustic_photons: caustic_photons(scene, settings),
     };
     let phase = progress.phase("photons", settings.photons as u64);
-    let (photons, photon_triangles, photon_stats) = {
+    let (photons, photon_triangles, stats) = {
         let _s = tracing::info_span!("photons", n = settings.photons, pass).entered();
         trace_photons(scene, accel, &trace, &|n| phase.inc(n as u64))
     };
     times.photons += phase.finish();
     tracing::info!(
         pass,
-        stored = photon_stats.stored,
-        caustic = photon_stats.caustic,
-        indirect = photon_stats.indirect,
-        direct = photon_stats.direct,
+        stored = stats.stored,
+        caustic = stats.caustic,
+        indirect = stats.indirect,
+        direct = stats.direct,
         "photons stored"
     );
-
     // Final gathering reads irradiance from all photons at the gather rays' hits; the camera
     // then sees only what gathering cannot give: caustics (and direct light in single-map mode).
-    let irradiance = (settings.effective_gather() > 0).then(|| {
+    let irradiance = (gather > 0).then(|| {
         let phase = progress.phase("irradiance", 0);
         let _s = tracing::info_span!("irradiance").entered();
         let all = PhotonMap::build(
@@ -241,29 +494,15 @@ fn trace_pass(
         times.irradiance += phase.finish();
         cache
     });
-    let direct_photons = settings.direct == DirectLighting::Photons;
-    let shown = |k: PhotonKind| match k {
-        PhotonKind::Caustic => true,
-        PhotonKind::Direct => direct_photons,
-        PhotonKind::Indirect => settings.effective_gather() == 0,
-    };
-    let (photons, photon_triangles): (Vec<Photon>, Vec<u32>) = if photon_triangles.is_empty() {
-        (photons.into_iter().filter(|p| shown(p.kind())).collect(), Vec::new())
-    } else {
-        photons
-            .into_iter()
-            .zip(photon_triangles)
-            .filter(|(p, _)| shown(p.kind()))
-            .unzip()
-    };
-
-    if settings.method == Method::Adaptive {
+    let (photons, photon_triangles) = shown_photons(settings, photons, photon_triangles);
+    if needs.grids {
         let phase = progress.phase("grids", 0);
         let _s = tracing::info_span!("grids", pass).entered();
+        let params = GridParams::from(settings);
         match grids.as_mut() {
-            Some(g) => g.add(scene, &photons, &photon_triangles, settings),
+            Some(g) => g.add(scene, &photons, &photon_triangles, &params),
             None => {
-                let g = Grids::build(scene, &photons, &photon_triangles, settings);
+                let g = Grids::build(scene, &photons, &photon_triangles, &params);
                 for c in &g.choice {
                     tracing::info!("{c}");
                 }
@@ -273,17 +512,34 @@ fn trace_pass(
         times.grids += phase.finish();
     }
     drop(photon_triangles);
-
     let phase = progress.phase("build", 0);
     let map = {
         let _s = tracing::info_span!("build", photons = photons.len()).entered();
         PhotonMap::build(photons, settings.neighbours, scene.surface_area(), max_radius)
     };
     times.build += phase.finish();
-    PassPhotons {
-        map,
-        stats: photon_stats,
-        irradiance,
+    PassPhotons { map, stats, irradiance }
+}
+
+/// The photons the camera pass estimates directly (with their triangles, when recorded):
+/// caustics always; direct light only in the single-map setting; indirect light unless final
+/// gathering reads it from precomputed irradiance instead.
+fn shown_photons(settings: &Settings, photons: Vec<Photon>, triangles: Vec<u32>) -> (Vec<Photon>, Vec<u32>) {
+    let direct_photons = settings.direct == DirectLighting::Photons;
+    let gather = settings.effective_gather() > 0;
+    let shown = |k: PhotonKind| match k {
+        PhotonKind::Caustic => true,
+        PhotonKind::Direct => direct_photons,
+        PhotonKind::Indirect => !gather,
+    };
+    if triangles.is_empty() {
+        (photons.into_iter().filter(|p| shown(p.kind())).collect(), Vec::new())
+    } else {
+        photons
+            .into_iter()
+            .zip(triangles)
+            .filter(|(p, _)| shown(p.kind()))
+            .unzip()
     }
 }
 
@@ -305,37 +561,28 @@ fn render_settings(camera: &Camera, settings: &Settings, pass: u32) -> RenderSet
         width,
         height,
         spp: settings.spp,
-        neighbours: settings.neighbours,
         direct: settings.direct,
         light_samples: settings.light_samples,
         max_specular_depth: settings.max_specular_depth,
         split_depth: settings.split_depth,
         seed: pass_seed(settings.seed, pass),
-        pass,
-        method: settings.method,
-        alpha: settings.alpha,
-        shadow_count: settings.shadow_count,
         gather: settings.effective_gather(),
     }
 }
 
-/// The photon data a camera pass reads.
-struct PassInputs<'a> {
-    pass: u32,
-    photons: PhotonData<'a>,
-}
-
-/// Add pass `input.pass` of `camera` to `acc`.
+/// Add pass `pass` of `camera` to `acc`; returns its seconds.
+#[allow(clippy::too_many_arguments)]
 fn render_pass(
     scene: &Scene,
     accel: &Accel,
-    input: &PassInputs<'_>,
+    photons: PhotonData<'_>,
+    pass: u32,
     camera: &Camera,
     settings: &Settings,
     acc: &mut Accumulator,
     progress: &Progress<'_>,
-) {
-    let rs = render_settings(camera, settings, input.pass);
+) -> f64 {
+    let rs = render_settings(camera, settings, pass);
     let phase = progress.phase("render", rs.height as u64);
     {
         let _s = tracing::info_span!(
@@ -343,15 +590,53 @@ fn render_pass(
             camera = camera.name.as_str(),
             width = rs.width,
             height = rs.height,
-            pass = input.pass
+            pass
         )
         .entered();
-        acc.add_pass(scene, accel, input.photons, camera, &rs, &|n| phase.inc(n as u64));
+        acc.add_pass(scene, accel, photons, camera, &rs, &|n| phase.inc(n as u64));
     }
-    phase.finish();
+    phase.finish()
 }
 
-/// Render one camera with prepared data (one pass).
+/// The photon data of pass 0, for rendering cameras one at a time with [`render_camera`]
+/// (tests that compare estimates on the same photons).
+pub struct Prepared {
+    /// The BVH.
+    pub accel: Accel,
+    /// The photon map.
+    pub map: PhotonMap,
+    /// Photon counts.
+    pub photon_stats: PhotonStats,
+    /// The grids (when the estimate needs them).
+    pub grids: Option<Grids>,
+    /// Precomputed irradiance for final gathering.
+    pub irradiance: Option<IrradianceCache>,
+}
+
+/// Build the BVH and trace pass 0's photons, as [`render`] does for its first pass.
+pub fn prepare(
+    scene: &Scene,
+    settings: &Settings,
+    progress: &Progress<'_>,
+    times: &mut PhaseTimes,
+) -> Result<Prepared, RenderError> {
+    settings.validate()?;
+    check_photon_memory(settings.photons, caustic_photons(scene, settings))?;
+    let accel = build_accel(scene, progress, times);
+    let mut grids = None;
+    let pass = trace_pass(scene, &accel, settings, 0, &mut grids, progress, times);
+    Ok(Prepared {
+        accel,
+        map: pass.map,
+        photon_stats: pass.stats,
+        grids,
+        irradiance: pass.irradiance,
+    })
+}
+
+/// Render one camera from prepared data as [`render`]'s first pass would, with the estimate
+/// `settings` asks for (which may differ from the one the data was prepared for, as long as
+/// it needs nothing more).
 pub fn render_camera(
     scene: &Scene,
     prepared: &Prepared,
@@ -360,134 +645,13 @@ pub fn render_camera(
     progress: &Progress<'_>,
 ) -> Film {
     let (w, h) = resolution(camera, settings);
-    let mut acc = Accumulator::new(settings.method, w, h, settings.spp);
-    let input = PassInputs {
-        pass: 0,
-        photons: PhotonData {
-            map: &prepared.map,
-            grids: prepared.grids.as_ref(),
-            irradiance: prepared.irradiance.as_ref(),
-        },
+    let mut acc = Accumulator::new(settings.method.needs().accumulation, w, h, settings.spp);
+    let input = PhotonData {
+        estimator: Estimator::for_pass(settings, 0, &prepared.map, prepared.grids.as_ref()),
+        irradiance: prepared.irradiance.as_ref(),
     };
-    render_pass(scene, &prepared.accel, &input, camera, settings, &mut acc, progress);
+    render_pass(scene, &prepared.accel, input, 0, camera, settings, &mut acc, progress);
     acc.film()
-}
-
-/// Writes the images so far while passes run (`--checkpoint`).
-pub struct Checkpoint<'a> {
-    /// Seconds between writes.
-    pub every: f64,
-    /// Write the films (one per camera, in order) after `passes` passes.
-    pub write: &'a mut dyn FnMut(&[Film], u32) -> Result<(), String>,
-}
-
-/// What a progressive render produced.
-pub struct Passes {
-    /// One image per camera, in the order given.
-    pub films: Vec<Film>,
-    /// Passes that ran.
-    pub passes: u32,
-    /// Seconds of each pass (photons and every camera).
-    pub pass_seconds: Vec<f64>,
-    /// Why the passes stopped.
-    pub stop: Stop,
-    /// Photon counts summed over passes.
-    pub photon_stats: PhotonStats,
-    /// The accumulated, filtered plane grids (adaptive method).
-    pub grids: Option<Grids>,
-    /// Checkpoints written.
-    pub checkpoints: u32,
-    /// Memory of the largest pass's photon map.
-    pub photon_map_bytes: usize,
-    /// Memory of the BVH.
-    pub bvh_bytes: usize,
-}
-
-/// Render `cameras` progressively: passes of `settings.photons` new photons (seed
-/// [`pass_seed`] of the pass) and `settings.spp` new samples per pixel, accumulated per camera,
-/// until `settings.passes` passes ran or the next pass would end after `settings.time`
-/// seconds counted from `start` ([`Budget`]); neither given: one pass, the plain render. The
-/// same seed and pass count give the same images whatever the thread count. Each pass's
-/// photons serve every camera, then are dropped. `checkpoint` writes the images so far every
-/// `every` seconds, except after the last pass (the caller writes the final images).
-pub fn render_passes(
-    scene: &Scene,
-    cameras: &[&Camera],
-    settings: &Settings,
-    start: Instant,
-    progress: &Progress<'_>,
-    times: &mut PhaseTimes,
-    mut checkpoint: Option<Checkpoint<'_>>,
-) -> Result<Passes, RenderError> {
-    settings.validate().map_err(RenderError::Settings)?;
-    check_photon_memory(settings.photons, settings.caustic_photons)?;
-    let accel = build_accel(scene, progress, times);
-    let budget = Budget {
-        passes: settings.passes,
-        time: settings.time,
-    };
-    let mut accs: Vec<Accumulator> = cameras
-        .iter()
-        .map(|c| {
-            let (w, h) = resolution(c, settings);
-            Accumulator::new(settings.method, w, h, settings.spp)
-        })
-        .collect();
-    let mut grids = None;
-    let mut photon_stats = PhotonStats::default();
-    let (mut pass_seconds, mut last, mut map_bytes, mut checkpoints) = (Vec::new(), 0.0f64, 0, 0);
-    let mut last_checkpoint = Instant::now();
-    let mut done = 0u32;
-    let stop = loop {
-        if let Err(stop) = budget.next(done, start.elapsed().as_secs_f64(), last) {
-            break stop;
-        }
-        let t = Instant::now();
-        let photons = trace_pass(scene, &accel, settings, done, &mut grids, progress, times);
-        photon_stats.add(&photons.stats);
-        map_bytes = map_bytes.max(photons.map.memory_bytes());
-        let tr = Instant::now();
-        let input = PassInputs {
-            pass: done,
-            photons: PhotonData {
-                map: &photons.map,
-                grids: grids.as_ref(),
-                irradiance: photons.irradiance.as_ref(),
-            },
-        };
-        for (camera, acc) in cameras.iter().zip(&mut accs) {
-            render_pass(scene, &accel, &input, camera, settings, acc, progress);
-        }
-        times.render += tr.elapsed().as_secs_f64();
-        drop(photons);
-        let seconds = t.elapsed().as_secs_f64();
-        pass_seconds.push(seconds);
-        last = seconds;
-        done += 1;
-        tracing::info!(pass = done, seconds = format!("{seconds:.3}"), "pass done");
-        if let Some(cp) = checkpoint.as_mut() {
-            let more = budget.next(done, start.elapsed().as_secs_f64(), last).is_ok();
-            if more && last_checkpoint.elapsed().as_secs_f64() >= cp.every {
-                let tw = Instant::now();
-                let films: Vec<Film> = accs.iter().map(Accumulator::film).collect();
-                (cp.write)(&films, done).map_err(RenderError::Checkpoint)?;
-                times.write += tw.elapsed().as_secs_f64();
-                checkpoints += 1;
-                last_checkpoint = Instant::now();
-            }
-        }
-    };
-    Ok(Passes {
-        films: accs.iter().map(Accumulator::film).collect(),
-        passes: done,
-        pass_seconds,
-        stop,
-        photon_stats,
-        grids,
-        checkpoints,
-        photon_map_bytes: map_bytes,
-        bvh_bytes: accel.memory_bytes(),
-    })
 }
 
 /// Pick cameras by name or index; "all" (or an empty list) means every camera.
@@ -501,4 +665,23 @@ pub fn select_cameras<'a>(scene: &'a Scene, keys: &[String]) -> Result<Vec<&'a C
     keys.iter()
         .map(|k| scene.camera(k).map_err(RenderError::UnknownCamera))
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn summary_lists_the_phases_that_ran_in_order() {
+        let t = PhaseTimes {
+            load: 0.1,
+            photons: 2.0,
+            irradiance: 1.5,
+            render: 0.7,
+            total: 4.3,
+            ..PhaseTimes::default()
+        };
+        let names: Vec<&str> = t.phases().iter().map(|p| p.0).collect();
+        assert_eq!(names, ["load", "photons", "irradiance", "render"]);
+    }
 }

@@ -166,16 +166,80 @@ pub fn uniform_triangle(u: Vec2) -> (f32, f32) {
     (1.0 - s, u.y * s)
 }
 
-/// Index of the first CDF entry greater than `u·total` (the CDF is inclusive, increasing).
-pub fn sample_cdf(cdf: &[f32], u: f32) -> usize {
-    let total = *cdf.last().unwrap_or(&0.0);
-    let x = u * total;
-    cdf.partition_point(|&c| c <= x).min(cdf.len().saturating_sub(1))
+/// A discrete distribution in proportion to non-negative weights: lights by power, emissive
+/// triangles by power, specular targets by solid angle.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Distribution {
+    /// Inclusive running sums of the weights.
+    cdf: Vec<f32>,
+}
+
+impl Distribution {
+    /// The distribution of `weights`.
+    pub fn new(weights: impl IntoIterator<Item = f32>) -> Self {
+        let mut acc = 0.0;
+        let cdf = weights
+            .into_iter()
+            .map(|w| {
+                acc += w;
+                acc
+            })
+            .collect();
+        Distribution { cdf }
+    }
+
+    /// Number of entries.
+    pub fn len(&self) -> usize {
+        self.cdf.len()
+    }
+
+    /// True if there are no entries.
+    pub fn is_empty(&self) -> bool {
+        self.cdf.is_empty()
+    }
+
+    /// Sum of the weights.
+    pub fn total(&self) -> f32 {
+        self.cdf.last().copied().unwrap_or(0.0)
+    }
+
+    /// Weight of entry `i`.
+    pub fn weight(&self, i: usize) -> f32 {
+        self.cdf[i] - if i == 0 { 0.0 } else { self.cdf[i - 1] }
+    }
+
+    /// The index of the first running sum greater than `u·total`, for `u` in [0, 1). Empty:
+    /// index 0.
+    pub fn sample(&self, u: f32) -> usize {
+        let x = u * self.total();
+        self.cdf
+            .partition_point(|&c| c <= x)
+            .min(self.cdf.len().saturating_sub(1))
+    }
+
+    /// Probability of entry `i`, given its weight (`weight / total`: passing the weight the
+    /// caller holds avoids the rounding of a difference of running sums).
+    pub fn pmf_of(&self, weight: f32) -> f32 {
+        weight / self.total()
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn distribution_samples_in_proportion() {
+        let d = Distribution::new([1.0, 0.0, 3.0]);
+        assert_eq!((d.len(), d.total()), (3, 4.0));
+        assert_eq!(d.sample(0.0), 0);
+        assert_eq!(d.sample(0.2499), 0);
+        assert_eq!(d.sample(0.25), 2, "a zero weight is never chosen");
+        assert_eq!(d.sample(0.9999), 2);
+        assert_eq!(d.weight(2), 3.0);
+        assert_eq!(d.pmf_of(d.weight(0)), 0.25);
+        assert_eq!(Distribution::default().sample(0.5), 0);
+    }
 
     #[test]
     fn rng_is_keyed_and_uniform() {
@@ -226,13 +290,5 @@ mod tests {
         rows.sort();
         assert_eq!(rows, (0..7).collect::<Vec<_>>());
         assert_eq!(cols, (0..7).collect::<Vec<_>>());
-    }
-
-    #[test]
-    fn cdf_sampling() {
-        let cdf = [1.0, 1.0, 3.0];
-        assert_eq!(sample_cdf(&cdf, 0.0), 0);
-        assert_eq!(sample_cdf(&cdf, 0.4), 2);
-        assert_eq!(sample_cdf(&cdf, 0.999), 2);
     }
 }

@@ -1,79 +1,169 @@
-//! Render settings: one struct with defaults, shared by the CLI, batch jobs, the add-on and
-//! the benchmarks, so a new option is added once.
+//! Render settings: one struct with defaults and validation, shared by the command line (its
+//! flags are derived from it with the `cli` feature), jobs files and stats (serde, same names),
+//! the Blender add-on (through `photongrid settings --schema`) and the benchmarks. A new option
+//! is added here once.
 
-use crate::grid::wavelet::{Threshold, Wavelet};
-use crate::grid::{GridMode, GridQuantity};
-use crate::render::{DirectLighting, Method};
 use serde::{Deserialize, Serialize};
 
 /// Everything that controls a render (except which scene and camera).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct Settings {
-    /// Photon paths emitted.
+    /// Photon paths emitted per pass (2M, 500k and 1e6 are accepted). 0: no photons at all, the
+    /// caustic pass included (direct light only).
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Photons", value_parser = parse_count, default_value_t = Settings::default().photons))]
+    #[serde(deserialize_with = "count::deserialize")]
     pub photons: usize,
-    /// Photons per radiance estimate (k).
-    pub neighbours: usize,
-    /// Camera rays per pixel.
-    pub spp: u32,
-    /// Random seed (same seed and settings → same image, whatever the thread count).
-    pub seed: u64,
-    /// Image width (default: from the camera's aspect at 480 lines).
-    pub width: Option<u32>,
-    /// Image height.
-    pub height: Option<u32>,
-    /// Direct light from shadow rays or from photons (the paper's single map).
-    pub direct: DirectLighting,
-    /// Shadow rays per emissive-light evaluation.
-    pub light_samples: u32,
+    /// Extra photon paths aimed at mirrors and glass, for caustics (none are traced when the
+    /// scene has no mirror or glass).
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Photons", value_parser = parse_count, default_value_t = Settings::default().caustic_photons))]
+    #[serde(deserialize_with = "count::deserialize")]
+    pub caustic_photons: usize,
     /// Photon bounces before a path stops.
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Photons", default_value_t = Settings::default().max_photon_depth))]
     pub max_photon_depth: u32,
-    /// Mirror/glass bounces followed from the camera.
-    pub max_specular_depth: u32,
-    /// Depth up to which both glass branches are followed from the camera.
-    pub split_depth: u32,
-    /// Largest gather radius, as a fraction of the scene's bounding-box diagonal (CLI and
-    /// jobs files: `max_radius`).
-    #[serde(alias = "max_radius")]
-    pub max_radius_rel: f32,
-    /// Radiance estimate: plain kNN, or the paper's grid-adaptive radius.
+
+    /// Image width in pixels (default: the camera's aspect at 480 lines).
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Image"))]
+    pub width: Option<u32>,
+    /// Image height in pixels.
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Image"))]
+    pub height: Option<u32>,
+    /// Camera rays per pixel and pass (jittered, 1-pixel box filter).
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Image", default_value_t = Settings::default().spp))]
+    pub spp: u32,
+    /// Random seed: the same seed and settings give the same image, whatever the thread count.
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Image", default_value_t = Settings::default().seed))]
+    pub seed: u64,
+
+    /// Radiance estimate from photons.
+    #[cfg_attr(feature = "cli", arg(long, value_enum, help_heading = "Estimate", default_value_t = Settings::default().method))]
     pub method: Method,
-    /// Which grids the adaptive method uses (planes, voxels, both, none).
+    /// Photons per radiance estimate (k nearest neighbours; n of the paper).
+    #[cfg_attr(feature = "cli", arg(long, visible_alias = "neighbors", help_heading = "Estimate", default_value_t = Settings::default().neighbours))]
+    pub neighbours: usize,
+    /// Direct light from shadow rays, or from photons like the paper's single photon map.
+    #[cfg_attr(feature = "cli", arg(long, value_enum, help_heading = "Estimate", default_value_t = Settings::default().direct))]
+    pub direct: DirectLighting,
+    /// Share of the kNN radius error kept by the paper's method: r = r_a + alpha (r_k − r_a).
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Estimate", default_value_t = Settings::default().alpha))]
+    pub alpha: f32,
+    /// Filtered photons per grid cell below which the kNN radius is used (shadows).
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Estimate", default_value_t = Settings::default().shadow_count))]
+    pub shadow_count: f32,
+    /// Largest photon gather radius, as a fraction of the scene's bounding-box diagonal.
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Estimate", default_value_t = Settings::default().max_radius))]
+    #[serde(alias = "max_radius_rel")]
+    pub max_radius: f32,
+
+    /// Grids of the adaptive estimate: planes where there are planes and voxels where needed
+    /// (auto), planes only (the paper), voxels for everything, or none.
+    #[cfg_attr(feature = "cli", arg(long, value_enum, help_heading = "Grids", default_value_t = Settings::default().grid))]
     pub grid: GridMode,
-    /// Cells along the longer side of each plane's grid (the paper: 128).
+    /// Cells along the longer side of each plane's count grid (the paper: 128).
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", default_value_t = Settings::default().grid_res))]
     pub grid_res: usize,
-    /// Wavelet for the count textures.
+    /// Wavelet for the photon-count textures.
+    #[cfg_attr(feature = "cli", arg(long, value_enum, help_heading = "Grids", default_value_t = Settings::default().wavelet))]
     pub wavelet: WaveletChoice,
-    /// Thresholding of the wavelet details.
+    /// Thresholding of wavelet details: the paper's fixed value, or set from the data.
+    #[cfg_attr(feature = "cli", arg(long, value_enum, help_heading = "Grids", default_value_t = Settings::default().threshold))]
     pub threshold: ThresholdChoice,
-    /// Value of the fixed threshold (photon counts), for `threshold = fixed`.
+    /// The fixed threshold (photon counts) for `--threshold fixed`.
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", default_value_t = Settings::default().threshold_value))]
     pub threshold_value: f32,
     /// Wavelet levels (at most; fewer on small grids).
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", default_value_t = Settings::default().wavelet_levels))]
     pub wavelet_levels: usize,
-    /// Share of the kNN radius error kept: `r = r_a + α (r_k − r_a)` (the paper: 0.1).
-    pub alpha: f32,
-    /// Below this filtered count per cell (shadows, dark corners) the kNN radius is used.
-    pub shadow_count: f32,
-    /// Whether the textures count photons or flux.
+    /// Whether grid cells count photons or flux.
+    #[cfg_attr(feature = "cli", arg(long, value_enum, help_heading = "Grids", default_value_t = Settings::default().grid_quantity))]
     pub grid_quantity: GridQuantity,
-    /// Extra photon paths aimed at mirrors and glass for caustics (skipped when the scene has
-    /// none).
-    pub caustic_photons: usize,
+
+    /// Shadow rays per emissive-surface light evaluation (point, spot and sun lights take one).
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Light paths", default_value_t = Settings::default().light_samples))]
+    pub light_samples: u32,
+    /// Mirror and glass bounces followed from the camera.
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Light paths", default_value_t = Settings::default().max_specular_depth))]
+    pub max_specular_depth: u32,
+    /// Depth up to which both glass branches (reflection and refraction) are followed from the
+    /// camera; deeper, one is chosen by Fresnel.
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Light paths", default_value_t = Settings::default().split_depth))]
+    pub split_depth: u32,
     /// Final-gather rays per camera sample (0: show the photon map directly, as the paper).
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Light paths", default_value_t = Settings::default().gather))]
     pub gather: u32,
     /// Photons per precomputed irradiance estimate (final gathering).
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Light paths", default_value_t = Settings::default().gather_neighbours))]
     pub gather_neighbours: usize,
-    /// Every how many photons an irradiance point is precomputed.
+    /// Every how many photons an irradiance point is precomputed (final gathering).
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Light paths", default_value_t = Settings::default().gather_stride))]
     pub gather_stride: usize,
+
     /// Progressive rendering: at most this many passes, each tracing `photons` new photons and
-    /// adding `spp` camera samples per pixel (none and no `time`: one pass).
+    /// adding `spp` new camera samples per pixel (neither this nor `time`: one pass).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "P", help_heading = "Passes and time"))]
     #[serde(skip_serializing_if = "Option::is_none")]
     pub passes: Option<u32>,
-    /// Progressive rendering: wall-time budget in seconds; passes are added while the next one
-    /// is expected to finish within it (at least one pass runs). Makes the image depend on the
-    /// machine's speed; the stats report the passes that ran.
+    /// Time budget: passes are added while the next one is expected to end within this wall
+    /// time, counted from the start (at least one pass runs). Seconds, or 90s, 2.5m, 1h. The
+    /// pass count then depends on the machine; the stats report it.
+    #[cfg_attr(feature = "cli", arg(long, visible_alias = "time-budget", value_name = "SECONDS", value_parser = parse_seconds, help_heading = "Passes and time"))]
     #[serde(skip_serializing_if = "Option::is_none", alias = "time_budget")]
     pub time: Option<f64>,
+}
+
+/// Where direct illumination comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "kebab-case")]
+pub enum DirectLighting {
+    /// Shadow rays to every light; the photon map gives indirect light and caustics only.
+    ShadowRays,
+    /// The paper's single map: all light, direct included, from photons.
+    Photons,
+}
+
+/// The radiance estimate (see `estimate`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// Classic k nearest neighbours (Jensen): r = distance to the k-th photon.
+    Knn,
+    /// The paper's: assumed radius from the filtered grids, blended with r_k.
+    Adaptive,
+    /// Stochastic progressive photon mapping (Hachisuka & Jensen 2009): a radius per camera
+    /// sample that shrinks as passes add photons.
+    Sppm,
+}
+
+/// Which grids the adaptive estimate uses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum GridMode {
+    /// Plane grids for planes; voxels only where enough receiving area is not planar.
+    Auto,
+    /// Plane grids only (the paper); other surfaces use plain kNN.
+    Planes,
+    /// One sparse voxel grid for every surface.
+    Voxels,
+    /// No grid: plain kNN everywhere.
+    None,
+}
+
+/// What a grid cell accumulates.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum GridQuantity {
+    /// Number of photons. The kNN radius is set by how many photons lie around a point, so
+    /// counts predict it directly, whatever each photon's power.
+    Count,
+    /// Flux, expressed in "mean photons" (cell flux / mean photon flux of the plane): equals
+    /// the count when photons carry equal power, differs after coloured bounces.
+    Flux,
 }
 
 /// Wavelet for the count textures (`none` skips filtering).
@@ -94,7 +184,7 @@ pub enum WaveletChoice {
 /// Thresholding of wavelet detail coefficients.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
-#[serde(rename_all = "lowercase")]
+#[serde(rename_all = "kebab-case")]
 pub enum ThresholdChoice {
     /// Keep all details (perfect reconstruction).
     None,
@@ -103,63 +193,38 @@ pub enum ThresholdChoice {
     /// Anscombe transform, σ from the finest band, hard threshold σ√(2 ln n).
     Universal,
     /// As universal, soft thresholding.
+    #[serde(alias = "universalsoft")]
     UniversalSoft,
     /// Anscombe transform, BayesShrink per subband.
     Bayes,
-}
-
-impl Settings {
-    /// The wavelet, or None for no filtering.
-    pub fn wavelet(&self) -> Option<Wavelet> {
-        match self.wavelet {
-            WaveletChoice::None => None,
-            WaveletChoice::Haar => Some(Wavelet::Haar),
-            WaveletChoice::Cdf53 => Some(Wavelet::Cdf53),
-            WaveletChoice::Cdf97 => Some(Wavelet::Cdf97),
-        }
-    }
-
-    /// The threshold rule.
-    pub fn threshold(&self) -> Threshold {
-        match self.threshold {
-            ThresholdChoice::None => Threshold::None,
-            ThresholdChoice::Fixed => Threshold::Fixed {
-                value: self.threshold_value,
-                soft: false,
-            },
-            ThresholdChoice::Universal => Threshold::Universal { soft: false },
-            ThresholdChoice::UniversalSoft => Threshold::Universal { soft: true },
-            ThresholdChoice::Bayes => Threshold::BayesShrink,
-        }
-    }
 }
 
 impl Default for Settings {
     fn default() -> Self {
         Settings {
             photons: 2_000_000,
-            neighbours: 100,
-            spp: 4,
-            seed: 0,
+            caustic_photons: 1_000_000,
+            max_photon_depth: 16,
             width: None,
             height: None,
-            direct: DirectLighting::ShadowRays,
-            light_samples: 4,
-            max_photon_depth: 16,
-            max_specular_depth: 12,
-            split_depth: 2,
-            max_radius_rel: 0.05,
+            spp: 4,
+            seed: 0,
             method: Method::Adaptive,
+            neighbours: 100,
+            direct: DirectLighting::ShadowRays,
+            alpha: 0.1,
+            shadow_count: 8.0,
+            max_radius: 0.05,
             grid: GridMode::Auto,
             grid_res: 128,
             wavelet: WaveletChoice::Haar,
             threshold: ThresholdChoice::Universal,
             threshold_value: 4.0,
             wavelet_levels: 4,
-            alpha: 0.1,
-            shadow_count: 8.0,
             grid_quantity: GridQuantity::Count,
-            caustic_photons: 1_000_000,
+            light_samples: 4,
+            max_specular_depth: 12,
+            split_depth: 2,
             gather: 8,
             gather_neighbours: 64,
             gather_stride: 4,
@@ -169,40 +234,79 @@ impl Default for Settings {
     }
 }
 
+/// A setting out of range: which one (its serde key, e.g. `max_radius`) and why.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("`{key}` {message}")]
+pub struct SettingsError {
+    /// The setting's key as jobs files and stats spell it.
+    pub key: &'static str,
+    /// What is wrong and what to do, without the setting's name.
+    pub message: String,
+}
+
+impl SettingsError {
+    fn new(key: &'static str, message: impl Into<String>) -> Self {
+        SettingsError {
+            key,
+            message: message.into(),
+        }
+    }
+
+    /// The command-line flag of the setting (`max_radius` → `--max-radius`).
+    pub fn flag(&self) -> String {
+        format!("--{}", self.key.replace('_', "-"))
+    }
+
+    /// The error in command-line terms: `--max-radius must be …`.
+    pub fn for_cli(&self) -> String {
+        format!("{} {}", self.flag(), self.message)
+    }
+}
+
+/// Largest image, in pixels (a film of 2^28 pixels takes several GiB).
+pub const MAX_PIXELS: u64 = 1 << 28;
+
 impl Settings {
-    /// Check values that would make a render meaningless, with what to do instead.
-    pub fn validate(&self) -> Result<(), String> {
+    /// Check values that would make a render meaningless or impossible, with what to do.
+    pub fn validate(&self) -> Result<(), SettingsError> {
+        let e = |key, message: &str| SettingsError::new(key, message);
         if self.neighbours == 0 {
-            return Err("--neighbours must be at least 1".into());
+            return Err(e("neighbours", "must be at least 1"));
         }
         if self.spp == 0 {
-            return Err("--spp must be at least 1".into());
+            return Err(e("spp", "must be at least 1"));
         }
-        if matches!(self.width, Some(0)) || matches!(self.height, Some(0)) {
-            return Err("--width and --height must be at least 1".into());
+        if self.width == Some(0) {
+            return Err(e("width", "must be at least 1"));
+        }
+        if self.height == Some(0) {
+            return Err(e("height", "must be at least 1"));
         }
         let (w, h) = (self.width.unwrap_or(640) as u64, self.height.unwrap_or(480) as u64);
-        if w * h > 1 << 28 {
-            return Err(format!("{w}×{h} pixels is too large (at most 2^28 pixels)"));
+        if w * h > MAX_PIXELS {
+            return Err(e(
+                "width",
+                &format!("× height = {w}×{h} pixels is too large (at most 2^28)"),
+            ));
         }
-        if !(self.max_radius_rel > 0.0 && self.max_radius_rel.is_finite()) {
-            return Err("max_radius_rel must be a positive number".into());
+        if !(self.max_radius > 0.0 && self.max_radius.is_finite()) {
+            return Err(e("max_radius", "must be a positive fraction of the scene diagonal"));
         }
         if self.grid_res == 0 || self.grid_res > 4096 {
-            return Err("--grid-res must be between 1 and 4096".into());
+            return Err(e("grid_res", "must be between 1 and 4096"));
         }
         if !(0.0..=1.0).contains(&self.alpha) {
-            return Err("--alpha must be between 0 and 1".into());
+            return Err(e("alpha", "must be between 0 and 1"));
         }
-        if !(self.shadow_count >= 0.0) {
-            return Err("--shadow-count must be ≥ 0".into());
+        if !(self.shadow_count >= 0.0 && self.shadow_count.is_finite()) {
+            return Err(e("shadow_count", "must be a number ≥ 0"));
         }
         if self.passes == Some(0) {
-            return Err("--passes must be at least 1".into());
+            return Err(e("passes", "must be at least 1"));
         }
         if let Some(t) = self.time {
             if !(t > 0.0 && t.is_finite()) {
-                return Err("--time must be a positive number of seconds".into());
+                return Err(e("time", "must be a positive number of seconds"));
             }
         }
         Ok(())
@@ -216,5 +320,105 @@ impl Settings {
         } else {
             self.gather
         }
+    }
+}
+
+/// Seconds from `90`, `90s`, `2.5m` or `1h`; must be positive.
+pub fn parse_seconds(v: &str) -> Result<f64, String> {
+    let s = parse_seconds_or_zero(v)?;
+    if s > 0.0 {
+        Ok(s)
+    } else {
+        Err("must be more than 0 seconds".into())
+    }
+}
+
+/// As [`parse_seconds`], 0 allowed.
+pub fn parse_seconds_or_zero(v: &str) -> Result<f64, String> {
+    let t = v.trim();
+    let (num, unit) = match t.char_indices().last() {
+        Some((i, 's')) => (&t[..i], 1.0),
+        Some((i, 'm')) => (&t[..i], 60.0),
+        Some((i, 'h')) => (&t[..i], 3600.0),
+        _ => (t, 1.0),
+    };
+    match num.trim().parse::<f64>() {
+        Ok(x) if x >= 0.0 && x.is_finite() => Ok(x * unit),
+        _ => Err(format!("`{v}` is not a duration: use seconds (30, 30s) or 2.5m, 1h")),
+    }
+}
+
+/// A count from `2000000`, `2e6`, `2M`, `500k` or `1.5G`: a whole, non-negative number.
+pub fn parse_count(v: &str) -> Result<usize, String> {
+    let t = v.trim().replace('_', "");
+    let (num, unit) = match t.char_indices().last() {
+        Some((i, 'k' | 'K')) => (&t[..i], 1e3),
+        Some((i, 'M')) => (&t[..i], 1e6),
+        Some((i, 'G')) => (&t[..i], 1e9),
+        _ => (t.as_str(), 1.0),
+    };
+    let bad = || format!("`{v}` is not a count: use e.g. 2000000, 2e6, 2M or 500k");
+    let x = num.trim().parse::<f64>().map_err(|_| bad())? * unit;
+    if !(x >= 0.0 && x.is_finite() && x.fract() == 0.0 && x <= usize::MAX as f64) {
+        return Err(bad());
+    }
+    Ok(x as usize)
+}
+
+/// Counts in jobs files: a number, or a string `parse_count` reads (`"2M"`).
+mod count {
+    use serde::{Deserialize, Deserializer};
+
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum Count {
+        Number(usize),
+        Text(String),
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<usize, D::Error> {
+        match Count::deserialize(d)? {
+            Count::Number(n) => Ok(n),
+            Count::Text(s) => super::parse_count(&s).map_err(serde::de::Error::custom),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn counts_and_durations_parse() {
+        assert_eq!(parse_count("2M"), Ok(2_000_000));
+        assert_eq!(parse_count("500k"), Ok(500_000));
+        assert_eq!(parse_count("1e6"), Ok(1_000_000));
+        assert_eq!(parse_count("1_000"), Ok(1000));
+        assert!(parse_count("1.5").is_err() && parse_count("-3").is_err() && parse_count("x").is_err());
+        assert_eq!(parse_seconds("2.5m"), Ok(150.0));
+        assert_eq!(parse_seconds("90s"), Ok(90.0));
+        assert!(parse_seconds("0").is_err());
+        assert_eq!(parse_seconds_or_zero("0"), Ok(0.0));
+    }
+
+    #[test]
+    fn defaults_are_valid_and_errors_name_the_setting() {
+        Settings::default().validate().unwrap();
+        let s = Settings {
+            max_radius: -1.0,
+            ..Settings::default()
+        };
+        let e = s.validate().unwrap_err();
+        assert_eq!(e.key, "max_radius");
+        assert!(e.for_cli().starts_with("--max-radius "), "{}", e.for_cli());
+        assert!(e.to_string().starts_with("`max_radius` "), "{e}");
+    }
+
+    #[test]
+    fn jobs_files_take_counts_as_text_and_the_old_key() {
+        let s: Settings = serde_json::from_str(r#"{"photons": "2M", "max_radius_rel": 0.1}"#).unwrap();
+        assert_eq!((s.photons, s.max_radius), (2_000_000, 0.1));
+        let round: Settings = serde_json::from_value(serde_json::to_value(&s).unwrap()).unwrap();
+        assert_eq!(round, s);
     }
 }

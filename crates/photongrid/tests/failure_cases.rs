@@ -9,14 +9,13 @@
 //! `PHOTONGRID_WRITE_DOCS=1 cargo test --release --test failure_cases -- --nocapture` also
 //! writes the table to `docs/failure_cases.md`.
 
-
-use photongrid_testkit::harness::*;
-use photongrid_testkit::*;
 use glam::Quat;
 use photongrid::film::Film;
-use photongrid::render::DirectLighting;
 use photongrid::scene::Scene;
+use photongrid::settings::DirectLighting;
 use photongrid::Settings;
+use photongrid_testkit::harness::*;
+use photongrid_testkit::*;
 use std::f64::consts::PI;
 use std::time::Instant;
 
@@ -38,7 +37,7 @@ fn base(photons: usize, view: &TopView) -> Settings {
         caustic_photons: 0,
         // The paper's setting: the photon map shown directly, plane grids only.
         gather: 0,
-        grid: photongrid::grid::GridMode::Planes,
+        grid: photongrid::settings::GridMode::Planes,
         ..Settings::default()
     }
 }
@@ -560,8 +559,7 @@ fn caustic(report: &mut Report) {
     let films = render_methods_with(&scene, &settings, &SEEDS, &METHODS, &mut |_, prepared| {
         let within: f64 = prepared
             .map
-            .grid()
-            .items()
+            .photons()
             .iter()
             .filter(|p| (p.pos().x as f64).hypot(p.pos().z as f64) <= radii[1])
             .map(|p| p.power().x as f64)

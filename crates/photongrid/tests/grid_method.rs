@@ -3,17 +3,17 @@
 //! smaller than a cell, continuity of the interpolated counts across cells and across the
 //! border of two planes, and what counting flux instead of photons changes.
 
-
-use photongrid_testkit::harness::*;
-use photongrid_testkit::*;
 use glam::Vec3;
 use photongrid::accel::Accel;
 use photongrid::grid::planes::{PlaneSet, NO_PLANE};
-use photongrid::grid::{GridQuantity, PlaneGrids};
+use photongrid::grid::PlaneGrids;
 use photongrid::photon::{trace_photons, TraceSettings};
-use photongrid::render::{DirectLighting, Method};
 use photongrid::scene::Scene;
+use photongrid::settings::GridQuantity;
+use photongrid::settings::{DirectLighting, Method};
 use photongrid::Settings;
+use photongrid_testkit::harness::*;
+use photongrid_testkit::*;
 
 fn describe(scene: &Scene, set: &PlaneSet) -> String {
     let mut s = String::new();
@@ -419,7 +419,11 @@ fn bilinear_counts_continuous_across_cells_and_planes() {
     );
     let s = Settings::default();
     let mut grids = PlaneGrids::count(set, &photons, &tris, GridQuantity::Count, |_| true);
-    grids.filter(s.wavelet(), s.threshold(), s.wavelet_levels);
+    grids.filter(
+        photongrid::grid::GridParams::from(&s).wavelet,
+        photongrid::grid::GridParams::from(&s).threshold,
+        s.wavelet_levels,
+    );
     let floor_tri = (0..scene.triangles.len())
         .find(|&t| scene.triangles[t].p.iter().all(|p| p.y == 0.0))
         .unwrap() as u32;
@@ -576,8 +580,16 @@ fn counts_versus_flux() {
         );
         let mut by_count = PlaneGrids::count(set.clone(), &photons, &tris, GridQuantity::Count, |_| true);
         let mut by_flux = PlaneGrids::count(set.clone(), &photons, &tris, GridQuantity::Flux, |_| true);
-        by_count.filter(s.wavelet(), s.threshold(), s.wavelet_levels);
-        by_flux.filter(s.wavelet(), s.threshold(), s.wavelet_levels);
+        by_count.filter(
+            photongrid::grid::GridParams::from(&s).wavelet,
+            photongrid::grid::GridParams::from(&s).threshold,
+            s.wavelet_levels,
+        );
+        by_flux.filter(
+            photongrid::grid::GridParams::from(&s).wavelet,
+            photongrid::grid::GridParams::from(&s).threshold,
+            s.wavelet_levels,
+        );
         doc += &format!("\n{label} (max photon depth {depth}), 400 000 photons, seed 1:\n\n");
         doc += "| plane | triangles' material | photons | Σ flux / Σ count | cells: flux/count 5th–95th percentile | assumed radius flux/count (median) |\n|---|---|---:|---:|---:|---:|\n";
         let mut ratios = Vec::new();

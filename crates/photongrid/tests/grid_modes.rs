@@ -1,7 +1,8 @@
 //! Choosing the model a scene needs: `--grid auto` gives planes to the Cornell box's walls and
 //! a voxel grid to curved_3d's trough, and no grid where none is asked for.
 
-use photongrid::grid::{GridMode, Grids};
+use photongrid::grid::Grids;
+use photongrid::settings::GridMode;
 use photongrid::Settings;
 
 fn scene(name: &str) -> photongrid::scene::Scene {
@@ -13,10 +14,11 @@ fn grids(s: &photongrid::scene::Scene, mode: GridMode) -> Grids {
         s,
         &[],
         &[],
-        &Settings {
+        &(&Settings {
             grid: mode,
             ..Settings::default()
-        },
+        })
+            .into(),
     )
 }
 

@@ -8,8 +8,8 @@ use super::*;
 use photongrid::film::Film;
 use photongrid::pipeline::{prepare, render_camera, select_cameras, PhaseTimes, Prepared};
 use photongrid::progress::Progress;
-use photongrid::render::Method;
 use photongrid::scene::Scene;
+use photongrid::settings::Method;
 use photongrid::Settings;
 use std::fmt::Write as _;
 

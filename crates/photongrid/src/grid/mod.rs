@@ -3,32 +3,68 @@
 //! receivers; from the counts follows the assumed radius of METHOD.md eq. (3).
 
 pub mod planes;
-pub mod radius;
+pub mod textures;
 pub mod voxels;
 pub mod wavelet;
 
-pub use radius::{assumed_radius, blended_radius, progressive_neighbours, GridQuantity, PlaneGrids};
+pub use textures::PlaneGrids;
 
+use crate::estimate::density::assumed_radius;
 use crate::photon::Photon;
 use crate::scene::Scene;
-use crate::settings::Settings;
+use crate::settings::{GridMode, GridQuantity, Settings, ThresholdChoice, WaveletChoice};
 use glam::Vec3;
-use serde::{Deserialize, Serialize};
 use voxels::VoxelGrid;
+use wavelet::{Threshold, Wavelet};
 
-/// Which grids the adaptive method uses.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
-#[serde(rename_all = "lowercase")]
-pub enum GridMode {
-    /// Plane grids for planes; voxels only where enough receiving area is not planar.
-    Auto,
-    /// Plane grids only (the paper); other surfaces use plain kNN.
-    Planes,
-    /// One sparse voxel grid for every surface.
-    Voxels,
-    /// No grid: plain kNN everywhere.
-    None,
+/// What the grids are built with (from [`Settings`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GridParams {
+    /// Which grids.
+    pub mode: GridMode,
+    /// Cells along a plane's longer side.
+    pub resolution: usize,
+    /// What a cell accumulates.
+    pub quantity: GridQuantity,
+    /// Wavelet of the count textures (none: no filtering).
+    pub wavelet: Option<Wavelet>,
+    /// Thresholding of the wavelet details.
+    pub threshold: Threshold,
+    /// Wavelet levels at most.
+    pub levels: usize,
+    /// Photon paths per pass (sizes the voxels before any photon is counted).
+    pub photons: usize,
+    /// Neighbours per estimate (sizes the voxels).
+    pub neighbours: usize,
+}
+
+impl From<&Settings> for GridParams {
+    fn from(s: &Settings) -> Self {
+        GridParams {
+            mode: s.grid,
+            resolution: s.grid_res,
+            quantity: s.grid_quantity,
+            wavelet: match s.wavelet {
+                WaveletChoice::None => None,
+                WaveletChoice::Haar => Some(Wavelet::Haar),
+                WaveletChoice::Cdf53 => Some(Wavelet::Cdf53),
+                WaveletChoice::Cdf97 => Some(Wavelet::Cdf97),
+            },
+            threshold: match s.threshold {
+                ThresholdChoice::None => Threshold::None,
+                ThresholdChoice::Fixed => Threshold::Fixed {
+                    value: s.threshold_value,
+                    soft: false,
+                },
+                ThresholdChoice::Universal => Threshold::Universal { soft: false },
+                ThresholdChoice::UniversalSoft => Threshold::Universal { soft: true },
+                ThresholdChoice::Bayes => Threshold::BayesShrink,
+            },
+            levels: s.wavelet_levels,
+            photons: s.photons,
+            neighbours: s.neighbours,
+        }
+    }
 }
 
 /// Non-planar receiving area, as a share of the scene's, below which auto mode builds no
@@ -59,14 +95,14 @@ pub struct Grids {
 }
 
 impl Grids {
-    /// Choose and build the grids for `settings.grid`, counting `photons` (landing on
+    /// Choose and build the grids for `params.mode`, counting `photons` (landing on
     /// `triangles[i]`).
-    pub fn build(scene: &Scene, photons: &[Photon], triangles: &[u32], settings: &Settings) -> Grids {
+    pub fn build(scene: &Scene, photons: &[Photon], triangles: &[u32], params: &GridParams) -> Grids {
         let mut choice = Vec::new();
-        let mode = settings.grid;
+        let mode = params.mode;
         let total_area = scene.surface_area().max(1e-12);
         let plane_set = matches!(mode, GridMode::Auto | GridMode::Planes)
-            .then(|| PlaneGrids::detect(&scene.triangles, settings.grid_res));
+            .then(|| PlaneGrids::detect(&scene.triangles, params.resolution));
         let mut on_plane = vec![false; scene.triangles.len()];
         if let Some(set) = &plane_set {
             for (t, p) in set.plane_of_triangle.iter().enumerate() {
@@ -76,7 +112,7 @@ impl Grids {
             choice.push(format!(
                 "{} planes with {}-cell grids cover {:.1} % of the surface",
                 set.planes.len(),
-                settings.grid_res,
+                params.resolution,
                 100.0 * plane_area / total_area
             ));
         }
@@ -100,8 +136,8 @@ impl Grids {
             ));
         }
         let planes = plane_set.map(|set| {
-            let mut g = PlaneGrids::count(set, photons, triangles, settings.grid_quantity, |_| true);
-            g.filter(settings.wavelet(), settings.threshold(), settings.wavelet_levels);
+            let mut g = PlaneGrids::count(set, photons, triangles, params.quantity, |_| true);
+            g.filter(params.wavelet, params.threshold, params.levels);
             g
         });
         let voxels = want_voxels.then(|| {
@@ -112,14 +148,14 @@ impl Grids {
             let share = area / total_area;
             // With no photons yet (`photongrid info`), size for the photons the settings ask for.
             let expected = if photons.is_empty() {
-                settings.photons
+                params.photons
             } else {
                 photons.len()
             };
             let n = (expected as f32 * share) as usize;
-            let size = VoxelGrid::suggest_voxel_size(n.max(1), settings.neighbours, area, scene.bounds.diagonal());
+            let size = VoxelGrid::suggest_voxel_size(n.max(1), params.neighbours, area, scene.bounds.diagonal());
             let mut v = VoxelGrid::from_triangles(&tris, size);
-            count_voxels(&mut v, scene, photons, triangles, &on_plane, settings);
+            count_voxels(&mut v, scene, photons, triangles, &on_plane, params);
             choice.push(format!(
                 "voxel grid: {:.4} m voxels, {} occupied, {:.1} MB, for {:.1} % of the surface",
                 size,
@@ -142,14 +178,14 @@ impl Grids {
 
     /// Add a further pass's photons to the counts and refilter (progressive rendering: the
     /// textures then hold every pass's photons so far).
-    pub fn add(&mut self, scene: &Scene, photons: &[Photon], triangles: &[u32], settings: &Settings) {
+    pub fn add(&mut self, scene: &Scene, photons: &[Photon], triangles: &[u32], params: &GridParams) {
         if let Some(p) = &mut self.planes {
-            let counted = PlaneGrids::count(p.set.clone(), photons, triangles, settings.grid_quantity, |_| true);
+            let counted = PlaneGrids::count(p.set.clone(), photons, triangles, params.quantity, |_| true);
             p.accumulate(&counted);
-            p.filter(settings.wavelet(), settings.threshold(), settings.wavelet_levels);
+            p.filter(params.wavelet, params.threshold, params.levels);
         }
         if let Some(v) = &mut self.voxels {
-            count_voxels(v, scene, photons, triangles, &self.on_plane, settings);
+            count_voxels(v, scene, photons, triangles, &self.on_plane, params);
         }
     }
 
@@ -192,7 +228,7 @@ fn count_voxels(
     photons: &[Photon],
     triangles: &[u32],
     on_plane: &[bool],
-    settings: &Settings,
+    params: &GridParams,
 ) {
     // Voxel bins follow the triangle's winding normal, so count with it (not the facing one).
     let items: Vec<(Vec3, Vec3, f32)> = photons
@@ -202,7 +238,7 @@ fn count_voxels(
         .map(|(p, &t)| (p.pos(), scene.triangles[t as usize].cross(), 1.0))
         .collect();
     v.count_parallel(&items);
-    if settings.wavelet().is_some() {
+    if params.wavelet.is_some() {
         v.denoise(1.0);
     }
 }

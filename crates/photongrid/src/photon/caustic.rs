@@ -5,7 +5,7 @@
 //! Several cones (or sun discs) may overlap; a photon's flux divides by the density of the
 //! whole mixture at its direction (one-sample balance heuristic), which keeps it unbiased.
 
-use crate::sampling::{self, Rng};
+use crate::sampling::{self, Distribution, Rng};
 use crate::scene::light::{power_weight, Emission};
 use crate::scene::{Light, Scene};
 use glam::Vec3;
@@ -138,23 +138,15 @@ impl SpecularTargets {
                         (glam::Vec2::new(c.dot(t), c.dot(b)), s.radius)
                     })
                     .collect();
-                let total: f32 = discs.iter().map(|d| d.1 * d.1).sum();
-                let pick = rng.uniform() * total;
-                let mut acc = 0.0;
-                let mut j = discs.len() - 1;
-                for (i, d) in discs.iter().enumerate() {
-                    acc += d.1 * d.1;
-                    if pick < acc {
-                        j = i;
-                        break;
-                    }
-                }
+                // Discs are chosen in proportion to their area.
+                let choice = Distribution::new(discs.iter().map(|d| d.1 * d.1));
+                let j = choice.sample(rng.uniform());
                 let x = discs[j].0 + sampling::concentric_disk(rng.uniform2()) * discs[j].1;
                 // Mixture density over the union of discs (per m²).
                 let pdf: f32 = discs
                     .iter()
                     .filter(|d| (x - d.0).length_squared() <= d.1 * d.1)
-                    .map(|d| (d.1 * d.1 / total) / (PI * d.1 * d.1))
+                    .map(|d| choice.pmf_of(d.1 * d.1) / (PI * d.1 * d.1))
                     .sum();
                 let origin = *scene_center - *direction * (*scene_radius * 1.01) + t * x.x + b * x.y;
                 Some(Emission {
@@ -164,9 +156,9 @@ impl SpecularTargets {
                 })
             }
             Light::Emissive { triangles, cdf } => {
-                let i = sampling::sample_cdf(cdf, rng.uniform());
+                let i = cdf.sample(rng.uniform());
                 let tri = &triangles[i];
-                let p_tri = power_weight(tri.power()) / cdf.last().copied().unwrap_or(1.0);
+                let p_tri = cdf.pmf_of(power_weight(tri.power()));
                 let (b1, b2) = sampling::uniform_triangle(rng.uniform2());
                 let origin = tri.p0 + tri.e1 * b1 + tri.e2 * b2;
                 let (d, pdf) = self.sample_cones(origin, rng)?;
@@ -202,25 +194,17 @@ impl SpecularTargets {
             })
             .collect();
         let solid = |cos_max: f32| 2.0 * PI * (1.0 - cos_max);
-        let total: f32 = cones.iter().map(|c| solid(c.1)).sum();
-        if !(total > 0.0) {
+        // Cones are chosen in proportion to their solid angle.
+        let choice = Distribution::new(cones.iter().map(|c| solid(c.1)));
+        if !(choice.total() > 0.0) {
             return None;
         }
-        let pick = rng.uniform() * total;
-        let mut acc = 0.0;
-        let mut j = cones.len() - 1;
-        for (i, c) in cones.iter().enumerate() {
-            acc += solid(c.1);
-            if pick < acc {
-                j = i;
-                break;
-            }
-        }
+        let j = choice.sample(rng.uniform());
         let d = sampling::uniform_cone(rng.uniform2(), cones[j].1, cones[j].0);
         let pdf: f32 = cones
             .iter()
             .filter(|c| d.dot(c.0) >= c.1)
-            .map(|c| (solid(c.1) / total) / solid(c.1))
+            .map(|c| choice.pmf_of(solid(c.1)) / solid(c.1))
             .sum();
         Some((d, pdf.max(1e-30)))
     }

@@ -6,6 +6,7 @@ use super::store::{Photon, PhotonKind};
 use crate::accel::Accel;
 use crate::bsdf;
 use crate::sampling::{self, stream, Rng};
+use crate::scene::light::LightSampler;
 use crate::scene::{Scene, Surface};
 use crate::surface::SurfacePoint;
 use crate::Rgb;
@@ -100,7 +101,8 @@ fn run_pass(
 }
 
 /// What the photon pass produced.
-#[derive(Clone, Debug, Default, serde::Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct PhotonStats {
     /// Paths started.
     pub emitted: usize,
@@ -145,30 +147,14 @@ pub fn trace_photons(
     settings: &TraceSettings,
     progress: &(dyn Fn(usize) + Sync),
 ) -> (Vec<Photon>, Vec<u32>, PhotonStats) {
-    let weights: Vec<f32> = scene
-        .lights
-        .iter()
-        .map(|l| crate::scene::light::power_weight(l.power()))
-        .collect();
-    let mut acc = 0.0;
-    let cdf: Vec<f32> = weights
-        .iter()
-        .map(|w| {
-            acc += w;
-            acc
-        })
-        .collect();
-    let total = acc;
+    let lights = LightSampler::new(&scene.lights);
     let targets = if settings.caustic_photons > 0 {
         SpecularTargets::find(scene)
     } else {
         SpecularTargets::default()
     };
     let caustic_pass = !targets.is_empty();
-    let pick_light = |rng: &mut Rng| {
-        let l = sampling::sample_cdf(&cdf, rng.uniform());
-        (l, weights[l] / total)
-    };
+    let pick_light = |rng: &mut Rng| lights.sample(rng.uniform());
     // The global pass; when the caustic pass runs, it owns every light → specular → diffuse
     // photon and the global pass must not store them too.
     let n = settings.photons;
@@ -286,40 +272,21 @@ fn trace_path(
                 origin = sp.offset(dir);
                 kind = PhotonKind::Indirect;
             }
-            Surface::Mirror { f0 } => {
-                let f = bsdf::fresnel_schlick(*f0, -dir.dot(sp.facing_shading_normal));
-                let q = f.max_element().min(1.0);
-                if rng.uniform() >= q {
+            surface => {
+                let Some(s) = bsdf::sample_specular(surface, dir, &sp, hit.t, rng) else {
                     return;
-                }
-                power *= f / q;
-                dir = bsdf::reflect(dir, sp.facing_shading_normal);
-                origin = sp.offset(dir);
-                if kind == PhotonKind::Direct {
-                    kind = PhotonKind::Caustic;
-                }
-            }
-            Surface::Dielectric { ior, tint, absorption } => {
-                if let (Some(sigma), true) = (absorption, sp.backface) {
-                    power *= (-*sigma * hit.t).exp();
-                }
-                let (r, t) = bsdf::dielectric_branches(dir, sp.geometric_normal, *ior, *tint);
-                let s = match t {
-                    Some(t) if rng.uniform() >= r.weight.x => SpecularSampleW {
-                        dir: t.direction,
-                        weight: t.weight / (1.0 - r.weight.x),
-                    },
-                    Some(_) => SpecularSampleW {
-                        dir: r.direction,
-                        weight: Rgb::ONE,
-                    },
-                    None => SpecularSampleW {
-                        dir: r.direction,
-                        weight: r.weight,
-                    },
                 };
-                power *= s.weight;
-                dir = s.dir;
+                // Russian roulette where the weight is below one keeps the power nearly constant.
+                let q = s.weight.max_element().min(1.0);
+                if q < 1.0 {
+                    if rng.uniform() >= q {
+                        return;
+                    }
+                    power *= s.weight / q;
+                } else {
+                    power *= s.weight;
+                }
+                dir = s.direction;
                 origin = sp.offset(dir);
                 if kind == PhotonKind::Direct {
                     kind = PhotonKind::Caustic;
@@ -330,9 +297,4 @@ fn trace_path(
             return;
         }
     }
-}
-
-struct SpecularSampleW {
-    dir: Vec3,
-    weight: Rgb,
 }

@@ -3,12 +3,13 @@
 
 use crate::accel::Accel;
 use crate::bsdf;
-use crate::estimate::{density_radiance, Gather, IrradianceCache, PhotonMap};
+use crate::estimate::density::{density_radiance, photon_density};
+use crate::estimate::{Estimator, IrradianceCache, Query};
 use crate::film::{Aov, Film};
-use crate::grid::{blended_radius, progressive_neighbours, Assumed, Grids};
 use crate::photon::neighbours::KnnBuffer;
 use crate::sampling::{self, stream, Rng};
 use crate::scene::{Camera, Scene, Surface};
+use crate::settings::DirectLighting;
 use crate::surface::SurfacePoint;
 use crate::Rgb;
 use glam::{Vec2, Vec3};
@@ -16,31 +17,6 @@ use rayon::prelude::*;
 
 pub mod progressive;
 pub mod sppm;
-
-/// Where direct illumination comes from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
-#[serde(rename_all = "kebab-case")]
-pub enum DirectLighting {
-    /// Shadow rays to every light; the photon map gives indirect light and caustics only.
-    ShadowRays,
-    /// The paper's single map: all light, direct included, from photons.
-    Photons,
-}
-
-/// How the photon estimate chooses its radius.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
-#[serde(rename_all = "lowercase")]
-pub enum Method {
-    /// Classic k nearest neighbours (Jensen): r = distance to the k-th photon.
-    Knn,
-    /// The paper's: assumed radius from the filtered plane grids, blended with r_k.
-    Adaptive,
-    /// Stochastic progressive photon mapping (Hachisuka & Jensen 2009): a radius per pixel
-    /// that shrinks as passes add photons (see [`sppm`]).
-    Sppm,
-}
 
 /// Settings of the camera pass.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -51,8 +27,6 @@ pub struct RenderSettings {
     pub height: u32,
     /// Camera rays per pixel.
     pub spp: u32,
-    /// Photons per estimate (k).
-    pub neighbours: usize,
     /// Direct light by shadow rays or photons.
     pub direct: DirectLighting,
     /// Shadow rays per emissive-light evaluation (delta lights always take one).
@@ -63,15 +37,6 @@ pub struct RenderSettings {
     pub split_depth: u32,
     /// Random seed (of this pass: [`crate::sampling::pass_seed`]).
     pub seed: u64,
-    /// Progressive pass (0-based); the adaptive radius shrinks with it
-    /// ([`progressive_neighbours`]).
-    pub pass: u32,
-    /// Radius choice.
-    pub method: Method,
-    /// Blend factor α of `r = r_a + α (r_k − r_a)`.
-    pub alpha: f32,
-    /// Filtered count per cell below which r_k is used.
-    pub shadow_count: f32,
     /// Final-gather rays per camera sample (0: none).
     pub gather: u32,
 }
@@ -80,21 +45,29 @@ pub struct RenderSettings {
 struct Tracer<'a> {
     scene: &'a Scene,
     accel: &'a Accel,
-    map: &'a PhotonMap,
-    grids: Option<&'a Grids>,
-    irradiance: Option<&'a IrradianceCache>,
+    photons: PhotonData<'a>,
     settings: &'a RenderSettings,
     knn: KnnBuffer,
 }
 
-/// What the camera pass reads from the photon pass: the photons shown directly, the grids of
-/// the adaptive radius, and precomputed irradiance for final gathering.
+impl<'a> Tracer<'a> {
+    fn new(scene: &'a Scene, accel: &'a Accel, photons: PhotonData<'a>, settings: &'a RenderSettings) -> Self {
+        Tracer {
+            scene,
+            accel,
+            photons,
+            settings,
+            knn: KnnBuffer::default(),
+        }
+    }
+}
+
+/// What the camera pass reads from the photon pass: the estimate over the photons shown
+/// directly, and precomputed irradiance for final gathering.
 #[derive(Clone, Copy)]
 pub struct PhotonData<'a> {
-    /// The photons estimated at visible points.
-    pub map: &'a PhotonMap,
-    /// Plane and voxel grids (adaptive method).
-    pub grids: Option<&'a Grids>,
+    /// The radiance estimate over this pass's photons.
+    pub estimator: Estimator<'a>,
     /// Irradiance points (final gathering).
     pub irradiance: Option<&'a IrradianceCache>,
 }
@@ -108,7 +81,6 @@ pub fn render(
     settings: &RenderSettings,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Film {
-    let PhotonData { map, grids, irradiance } = photons;
     let (w, h) = (settings.width, settings.height);
     let mut film = Film::new(w, h);
     let spp = settings.spp.max(1);
@@ -117,15 +89,7 @@ pub fn render(
         .zip(film.aov.par_chunks_mut(w as usize))
         .enumerate()
         .for_each_init(
-            || Tracer {
-                scene,
-                accel,
-                map,
-                grids,
-                irradiance,
-                settings,
-                knn: KnnBuffer::default(),
-            },
+            || Tracer::new(scene, accel, photons, settings),
             |tracer, (y, (row, aovs))| {
                 for x in 0..w as usize {
                     let pixel = (y * w as usize + x) as u64;
@@ -188,43 +152,28 @@ impl Tracer<'_> {
         if material.is_emissive() && (material.double_sided || !sp.backface) {
             l += material.emission;
         }
-        match &material.surface {
-            Surface::Lambert { .. } => l += self.diffuse(&sp, rng, aov),
-            Surface::Mirror { f0 } => {
-                if depth < self.settings.max_specular_depth {
-                    let f = bsdf::fresnel_schlick(*f0, -d.dot(sp.facing_shading_normal));
-                    let r = bsdf::reflect(d, sp.facing_shading_normal);
-                    l += f * self.radiance(sp.offset(r), r, depth + 1, rng, aov);
-                }
-            }
-            Surface::Dielectric { ior, tint, absorption } => {
-                let mut weight = Rgb::ONE;
-                if let (Some(sigma), true) = (absorption, sp.backface) {
-                    weight = (-*sigma * hit.t).exp();
-                }
-                if depth < self.settings.max_specular_depth {
-                    let (r, t) = bsdf::dielectric_branches(d, sp.geometric_normal, *ior, *tint);
-                    let branch =
-                        |tr: &mut Self, s: bsdf::SpecularSample, w: Rgb, rng: &mut Rng, aov: &mut Option<&mut Aov>| {
-                            w * tr.radiance(sp.offset(s.direction), s.direction, depth + 1, rng, aov)
-                        };
-                    match t {
-                        Some(t) if depth < self.settings.split_depth => {
-                            l += weight * branch(self, t, t.weight, rng, aov);
-                            l += weight * branch(self, r, r.weight, rng, &mut None);
-                        }
-                        Some(t) => {
-                            let pr = r.weight.x;
-                            if rng.uniform() < pr {
-                                l += weight * branch(self, r, Rgb::ONE, rng, aov);
-                            } else {
-                                l += weight * branch(self, t, t.weight / (1.0 - pr), rng, aov);
-                            }
-                        }
-                        None => l += weight * branch(self, r, r.weight, rng, aov),
+        if let Surface::Lambert { .. } = material.surface {
+            return l + self.diffuse(&sp, rng, aov);
+        }
+        if depth >= self.settings.max_specular_depth {
+            return l;
+        }
+        let next = |tr: &mut Self, s: bsdf::Scatter, rng: &mut Rng, aov: &mut Option<&mut Aov>| {
+            s.weight * tr.radiance(sp.offset(s.direction), s.direction, depth + 1, rng, aov)
+        };
+        if depth < self.settings.split_depth {
+            // Near the camera both glass branches are followed: less noise where it shows most.
+            if let Some((r, t)) = bsdf::specular_branches(&material.surface, d, &sp, hit.t) {
+                match t {
+                    Some(t) => {
+                        l += next(self, t, rng, aov);
+                        l += next(self, r, rng, &mut None);
                     }
+                    None => l += next(self, r, rng, aov),
                 }
             }
+        } else if let Some(s) = bsdf::sample_specular(&material.surface, d, &sp, hit.t, rng) {
+            l += next(self, s, rng, aov);
         }
         l
     }
@@ -239,14 +188,20 @@ impl Tracer<'_> {
         if self.settings.direct == DirectLighting::ShadowRays {
             l += bsdf::lambert(albedo) * self.direct_irradiance(sp, rng);
         }
-        let g = self.gather(sp);
+        let query = Query {
+            position: sp.position,
+            facing_normal: sp.facing_normal,
+            geometric_normal: sp.geometric_normal,
+            triangle: sp.triangle,
+        };
+        let g = self.photons.estimator.gather(&query, &mut self.knn);
         l += density_radiance(albedo, g.flux, g.r2);
-        if let (Some(cache), true) = (self.irradiance, self.settings.gather > 0) {
+        if let (Some(cache), true) = (self.photons.irradiance, self.settings.gather > 0) {
             l += albedo * self.final_gather(sp, cache, rng);
         }
         if let Some(a) = aov.take() {
             a.albedo = albedo;
-            a.density = g.count as f32 / (std::f32::consts::PI * g.r2.max(1e-30));
+            a.density = photon_density(g.count as f32, g.r2);
             a.radius = g.r2.sqrt();
         }
         l
@@ -275,84 +230,17 @@ impl Tracer<'_> {
             return Rgb::ZERO;
         };
         let sp = SurfacePoint::new(self.scene, o, d, hit);
-        match &self.scene.materials[sp.material as usize].surface {
-            Surface::Lambert { .. } => {
-                let e = cache.lookup(sp.position, sp.facing_normal, &mut self.knn);
-                bsdf::lambert(sp.albedo(self.scene)) * e
-            }
-            _ if depth >= 4 => Rgb::ZERO,
-            Surface::Mirror { f0 } => {
-                let f = bsdf::fresnel_schlick(*f0, -d.dot(sp.facing_shading_normal));
-                let r = bsdf::reflect(d, sp.facing_shading_normal);
-                f * self.gather_ray(sp.offset(r), r, depth + 1, cache, rng)
-            }
-            Surface::Dielectric { ior, tint, absorption } => {
-                let mut w = Rgb::ONE;
-                if let (Some(sigma), true) = (absorption, sp.backface) {
-                    w = (-*sigma * hit.t).exp();
-                }
-                let (r, t) = bsdf::dielectric_branches(d, sp.geometric_normal, *ior, *tint);
-                let s = match t {
-                    Some(t) if rng.uniform() >= r.weight.x => bsdf::SpecularSample {
-                        weight: t.weight / (1.0 - r.weight.x),
-                        ..t
-                    },
-                    Some(_) => bsdf::SpecularSample { weight: Rgb::ONE, ..r },
-                    None => r,
-                };
-                w * s.weight * self.gather_ray(sp.offset(s.direction), s.direction, depth + 1, cache, rng)
-            }
+        let surface = &self.scene.materials[sp.material as usize].surface;
+        if let Surface::Lambert { .. } = surface {
+            let e = cache.lookup(sp.position, sp.facing_normal, &mut self.knn);
+            return bsdf::lambert(sp.albedo(self.scene)) * e;
         }
-    }
-
-    /// Photons around a diffuse point, with the radius the method chooses.
-    ///
-    /// Progressive passes: kNN keeps `k` in every pass's own map (the passes' images are
-    /// averaged: noise falls, the bias of k neighbours among `photons` stays); the adaptive
-    /// method's counts hold every pass's photons so far and its neighbours grow with the pass
-    /// so that its radius shrinks ([`progressive_neighbours`]).
-    fn gather(&mut self, sp: &SurfacePoint) -> Gather {
-        let (n_all, k) = match self.settings.method {
-            Method::Adaptive => progressive_neighbours(self.settings.neighbours, self.settings.pass),
-            _ => (self.settings.neighbours, self.settings.neighbours),
-        };
-        let gk = self.map.knn(sp.position, sp.facing_normal, k, &mut self.knn);
-        if self.settings.method != Method::Adaptive {
-            return gk;
+        if depth >= 4 {
+            return Rgb::ZERO;
         }
-        let Some(grids) = self.grids else { return gk };
-        let r_a = match grids.assumed(
-            sp.triangle,
-            sp.position,
-            sp.geometric_normal,
-            n_all,
-            self.settings.shadow_count,
-        ) {
-            Assumed::Radius(r) => r,
-            // Shadows, dark corners, surfaces no grid covers: the real kNN radius.
-            Assumed::Shadow | Assumed::Uncovered => return gk,
-        };
-        if gk.count < k {
-            return gk; // fewer than k photons within the largest radius: nothing to blend with
-        }
-        let r_k = gk.r2.sqrt();
-        let r = blended_radius(r_a, r_k, self.settings.alpha).min(self.map.max_radius);
-        if r <= r_k {
-            let items = self.map.grid().items();
-            let r2 = r * r;
-            let mut g = Gather {
-                r2,
-                ..Default::default()
-            };
-            for &(i, d2) in self.knn.as_slice() {
-                if d2 <= r2 {
-                    g.flux += items[i as usize].power();
-                    g.count += 1;
-                }
-            }
-            g
-        } else {
-            self.map.within(sp.position, sp.facing_normal, r)
+        match bsdf::sample_specular(surface, d, &sp, hit.t, rng) {
+            Some(s) => s.weight * self.gather_ray(sp.offset(s.direction), s.direction, depth + 1, cache, rng),
+            None => Rgb::ZERO,
         }
     }
 

@@ -3,8 +3,9 @@
 //! each pass's photons, is [`crate::pipeline::render_passes`].
 
 use super::sppm::SppmFilm;
-use super::{render, Method, PhotonData, RenderSettings};
+use super::{render, PhotonData, RenderSettings};
 use crate::accel::Accel;
+use crate::estimate::Accumulation;
 use crate::film::{Aov, Film};
 use crate::scene::{Camera, Scene};
 use crate::Rgb;
@@ -28,11 +29,11 @@ pub enum Accumulator {
 }
 
 impl Accumulator {
-    /// An empty image for `method`.
-    pub fn new(method: Method, width: u32, height: u32, spp: u32) -> Self {
-        match method {
-            Method::Sppm => Accumulator::Sppm(SppmFilm::new(width, height, spp)),
-            Method::Knn | Method::Adaptive => Accumulator::Average {
+    /// An empty image that accumulates passes as `accumulation` says.
+    pub fn new(accumulation: Accumulation, width: u32, height: u32, spp: u32) -> Self {
+        match accumulation {
+            Accumulation::PerSample => Accumulator::Sppm(SppmFilm::new(width, height, spp)),
+            Accumulation::Average => Accumulator::Average {
                 sum: vec![Rgb::ZERO; width as usize * height as usize],
                 aov: Vec::new(),
                 size: (width, height),
@@ -54,7 +55,7 @@ impl Accumulator {
         progress: &(dyn Fn(usize) + Sync),
     ) {
         match self {
-            Accumulator::Sppm(s) => s.add_pass(scene, accel, photons.map, camera, settings, progress),
+            Accumulator::Sppm(s) => s.add_pass(scene, accel, photons, camera, settings, progress),
             Accumulator::Average { sum, aov, passes, .. } => {
                 let film = render(scene, accel, photons, camera, settings, progress);
                 for (s, c) in sum.iter_mut().zip(&film.color) {
@@ -96,7 +97,7 @@ impl Accumulator {
 }
 
 /// Why the passes stopped.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Stop {
     /// The pass count was reached (one pass when neither count nor time is given).

@@ -11,72 +11,24 @@
 //! A sample's radius starts at the kNN radius (k = `neighbours`) of the first pass's map
 //! where it first meets a diffuse surface.
 
-use super::{camera_ray, pixel_strata, DirectLighting, RenderSettings, Tracer};
+use super::{camera_ray, pixel_strata, PhotonData, RenderSettings, Tracer};
 use crate::accel::Accel;
 use crate::bsdf;
-use crate::estimate::PhotonMap;
+use crate::estimate::density::photon_density;
+use crate::estimate::sppm::SppmPixel;
+use crate::estimate::Query;
 use crate::film::{Aov, Film};
-use crate::photon::neighbours::KnnBuffer;
 use crate::sampling::Rng;
 use crate::scene::{Camera, Scene, Surface};
+use crate::settings::DirectLighting;
 use crate::surface::SurfacePoint;
 use crate::Rgb;
 use glam::Vec3;
 use rayon::prelude::*;
-use std::f32::consts::PI;
-
-/// Share of a pass's photons kept in the accumulated count (Hachisuka et al. 2008, eq. 6;
-/// pbrt-v4 uses 2/3).
-pub const ALPHA: f32 = 2.0 / 3.0;
-
-/// The statistics of one camera sample across passes.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct SppmPixel {
-    /// Squared gather radius (0: no visible point yet, radius not chosen).
-    pub r2: f32,
-    /// Accumulated photon count `N`.
-    pub n: f32,
-    /// Accumulated flux `τ` (BSDF and path weight applied), in units of one pass's photons.
-    pub tau: Rgb,
-}
-
-impl SppmPixel {
-    /// Add a pass in which `m` photons with weighted flux sum `phi` fell within the radius
-    /// (Hachisuka & Jensen 2009, eqs. 5–8; α = [`ALPHA`]):
-    /// `N' = N + αM`, `r'² = r² (N + αM)/(N + M)`, `τ' = (τ + Φ_M)(N + αM)/(N + M)`.
-    /// Without photons nothing changes (the pass still counts in [`SppmPixel::radiance`]).
-    pub fn update(&mut self, m: usize, phi: Rgb) {
-        if m == 0 {
-            return;
-        }
-        let m = m as f32;
-        let n_new = self.n + ALPHA * m;
-        let shrink = n_new / (self.n + m);
-        self.r2 *= shrink;
-        self.tau = (self.tau + phi) * shrink;
-        self.n = n_new;
-    }
-
-    /// Reflected radiance from photons after `passes` passes: `τ / (P π r²)`.
-    ///
-    /// Normalisation: the SPPM estimate is `L = τ / (N_e π r²)` when each photon carries the
-    /// power of one emitted path, `Φ_light / p_light`, and `N_e` paths were emitted over all
-    /// passes. Our photons already carry `Φ_light / (p_light N_pass)` (the pass's paths,
-    /// `photon::trace`), so our `τ` is pbrt's divided by `N_pass`, and with `N_e = P N_pass`
-    /// the estimate is `τ / (P π r²)`. This holds for any mixture of global and caustic-pass
-    /// paths, since every pass's photons are by themselves an unbiased flux estimate.
-    pub fn radiance(&self, passes: u32) -> Rgb {
-        if self.r2 <= 0.0 || passes == 0 {
-            return Rgb::ZERO;
-        }
-        self.tau / (passes as f32 * PI * self.r2)
-    }
-}
 
 /// Where a camera sample's path meets its first diffuse surface.
 struct VisiblePoint {
-    position: Vec3,
-    normal: Vec3,
+    query: Query,
     /// Path weight × Lambert BSDF (albedo/π): photon flux × this is reflected radiance × area.
     weight: Rgb,
 }
@@ -115,14 +67,13 @@ impl SppmFilm {
         self.passes
     }
 
-    /// Add one pass: visible points for `settings.seed`'s camera samples, gathered from `map`
-    /// (this pass's photons only). `progress(rows)` is called as rows finish.
-    #[allow(clippy::too_many_arguments)]
+    /// Add one pass: visible points for `settings.seed`'s camera samples, gathered from this
+    /// pass's photons only. `progress(rows)` is called as rows finish.
     pub fn add_pass(
         &mut self,
         scene: &Scene,
         accel: &Accel,
-        map: &PhotonMap,
+        photons: PhotonData<'_>,
         camera: &Camera,
         settings: &RenderSettings,
         progress: &(dyn Fn(usize) + Sync),
@@ -138,15 +89,7 @@ impl SppmFilm {
             .zip(self.aov.par_chunks_mut(w))
             .enumerate()
             .for_each_init(
-                || Tracer {
-                    scene,
-                    accel,
-                    map,
-                    grids: None,
-                    irradiance: None,
-                    settings,
-                    knn: KnnBuffer::default(),
-                },
+                || Tracer::new(scene, accel, photons, settings),
                 |tracer, (y, ((samples, direct), aovs))| {
                     for x in 0..w {
                         let strata = pixel_strata(settings, (y * w + x) as u64);
@@ -183,7 +126,7 @@ impl SppmFilm {
             *a = self.aov[i];
             let s = &self.samples[i * spp];
             a.radius = s.r2.sqrt();
-            a.density = if s.r2 > 0.0 { s.n / (PI * s.r2) } else { 0.0 };
+            a.density = photon_density(s.n, s.r2);
         }
         film
     }
@@ -217,51 +160,44 @@ impl Tracer<'_> {
             if material.is_emissive() && (material.double_sided || !sp.backface) {
                 l += beta * material.emission;
             }
-            if !matches!(material.surface, Surface::Lambert { .. }) && depth == self.settings.max_specular_depth {
+            if let Surface::Lambert { .. } = material.surface {
+                let albedo = sp.albedo(self.scene);
+                if let Some(a) = aov.as_deref_mut() {
+                    a.albedo = albedo;
+                }
+                if albedo.max_element() <= 0.0 {
+                    break;
+                }
+                let f = bsdf::lambert(albedo);
+                if self.settings.direct == DirectLighting::ShadowRays {
+                    l += beta * f * self.direct_irradiance(&sp, rng);
+                }
+                let query = Query {
+                    position: sp.position,
+                    facing_normal: sp.facing_normal,
+                    geometric_normal: sp.geometric_normal,
+                    triangle: sp.triangle,
+                };
+                return (
+                    l,
+                    Some(VisiblePoint {
+                        query,
+                        weight: beta * f,
+                    }),
+                );
+            }
+            if depth == self.settings.max_specular_depth {
                 break; // as the camera pass: no mirror/glass bounce beyond the limit
             }
-            let (dir, weight) = match &material.surface {
-                Surface::Lambert { .. } => {
-                    let albedo = sp.albedo(self.scene);
-                    if let Some(a) = aov.as_deref_mut() {
-                        a.albedo = albedo;
-                    }
-                    if albedo.max_element() <= 0.0 {
-                        break;
-                    }
-                    let f = bsdf::lambert(albedo);
-                    if self.settings.direct == DirectLighting::ShadowRays {
-                        l += beta * f * self.direct_irradiance(&sp, rng);
-                    }
-                    let vp = VisiblePoint {
-                        position: sp.position,
-                        normal: sp.facing_normal,
-                        weight: beta * f,
-                    };
-                    return (l, Some(vp));
-                }
-                Surface::Mirror { f0 } => {
-                    let f = bsdf::fresnel_schlick(*f0, -d.dot(sp.facing_shading_normal));
-                    (bsdf::reflect(d, sp.facing_shading_normal), f)
-                }
-                Surface::Dielectric { ior, tint, absorption } => {
-                    if let (Some(sigma), true) = (absorption, sp.backface) {
-                        beta *= (-*sigma * hit.t).exp();
-                    }
-                    let (r, t) = bsdf::dielectric_branches(d, sp.geometric_normal, *ior, *tint);
-                    match t {
-                        Some(t) if rng.uniform() >= r.weight.x => (t.direction, t.weight / (1.0 - r.weight.x)),
-                        Some(_) => (r.direction, Rgb::ONE),
-                        None => (r.direction, r.weight),
-                    }
-                }
+            let Some(s) = bsdf::sample_specular(&material.surface, d, &sp, hit.t, rng) else {
+                break;
             };
-            beta *= weight;
+            beta *= s.weight;
             if beta.max_element() <= 0.0 || !beta.is_finite() {
                 break;
             }
-            o = sp.offset(dir);
-            d = dir;
+            o = sp.offset(s.direction);
+            d = s.direction;
         }
         (l, None)
     }
@@ -269,66 +205,15 @@ impl Tracer<'_> {
     /// Gather this pass's photons around a visible point into a sample's statistics; the
     /// first time, the radius is the kNN radius there.
     fn gather_sppm(&mut self, px: &mut SppmPixel, vp: &VisiblePoint) {
+        let map = self.photons.estimator.map();
         if px.r2 <= 0.0 {
-            let g = self
-                .map
-                .knn(vp.position, vp.normal, self.settings.neighbours, &mut self.knn);
-            px.r2 = g.r2.min(self.map.max_radius * self.map.max_radius);
+            let g = self.photons.estimator.gather(&vp.query, &mut self.knn);
+            px.r2 = g.r2.min(map.max_radius * map.max_radius);
             if px.r2 <= 0.0 {
                 return;
             }
         }
-        let g = self.map.within(vp.position, vp.normal, px.r2.sqrt());
+        let g = map.within(vp.query.position, vp.query.facing_normal, px.r2.sqrt());
         px.update(g.count, vp.weight * g.flux);
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::sampling::Rng;
-
-    /// Photons spread uniformly over a unit square, a visible point at its centre: after many
-    /// passes the estimate converges to the true density and the radius shrinks.
-    #[test]
-    fn update_converges_on_a_uniform_field() {
-        let per_pass = 2000; // photons per pass over 1 m²
-        let e = Rgb::new(3.0, 2.0, 1.0); // irradiance [W/m²]: each photon carries e / per_pass
-        let phi = e / per_pass as f32;
-        let mut px = SppmPixel {
-            r2: 0.2f32 * 0.2,
-            ..Default::default()
-        };
-        let r2_start = px.r2;
-        let mut rng = Rng::keyed(1, 2, 3);
-        let passes = 2000;
-        let mut r2_at = Vec::new();
-        for p in 1..=passes {
-            let (mut m, mut flux) = (0, Rgb::ZERO);
-            for _ in 0..per_pass {
-                let q = rng.uniform2() - glam::Vec2::splat(0.5);
-                if q.length_squared() <= px.r2 {
-                    m += 1;
-                    flux += phi;
-                }
-            }
-            px.update(m, flux);
-            if p == 10 || p == 100 || p == 1000 {
-                r2_at.push(px.r2);
-            }
-        }
-        // Weight 1 (no BSDF): the estimate is the irradiance itself.
-        let got = px.radiance(passes);
-        let rel = (got / e - Rgb::ONE).abs().max_element();
-        assert!(rel < 0.02, "estimate {got} vs {e} ({rel})");
-        // The radius shrinks monotonically, roughly as P^(α−1) = P^(−1/3) in r².
-        assert!(r2_at.windows(2).all(|w| w[1] < w[0]) && px.r2 < r2_at[2]);
-        let ratio = r2_at[2] / r2_at[1]; // 1000 vs 100 passes: 10^(−1/3) ≈ 0.46
-        assert!((0.35..0.6).contains(&ratio), "r² ratio {ratio}");
-        assert!(px.r2 < 0.1 * r2_start);
-        // No photons: nothing changes.
-        let before = px;
-        px.update(0, Rgb::ZERO);
-        assert_eq!(px, before);
     }
 }

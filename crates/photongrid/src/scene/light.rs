@@ -2,7 +2,7 @@
 //! gives direct illumination for shadow rays.
 
 use super::units;
-use crate::sampling::{self, Rng};
+use crate::sampling::{self, Distribution, Rng};
 use crate::Rgb;
 use glam::{Vec2, Vec3};
 use std::f32::consts::PI;
@@ -93,7 +93,7 @@ pub enum Light {
         /// The triangles.
         triangles: Vec<EmitterTriangle>,
         /// Inclusive CDF of luminous power over `triangles`.
-        cdf: Vec<f32>,
+        cdf: Distribution,
     },
 }
 
@@ -130,14 +130,7 @@ impl Light {
         if triangles.is_empty() {
             return None;
         }
-        let mut acc = 0.0;
-        let cdf = triangles
-            .iter()
-            .map(|t| {
-                acc += power_weight(t.power());
-                acc
-            })
-            .collect();
+        let cdf = Distribution::new(triangles.iter().map(|t| power_weight(t.power())));
         Some(Light::Emissive { triangles, cdf })
     }
 
@@ -246,9 +239,9 @@ impl Light {
                 }
             }
             Light::Emissive { triangles, cdf } => {
-                let i = sampling::sample_cdf(cdf, rng.uniform());
+                let i = cdf.sample(rng.uniform());
                 let t = &triangles[i];
-                let pdf = power_weight(t.power()) / cdf.last().copied().unwrap_or(1.0);
+                let pdf = cdf.pmf_of(power_weight(t.power()));
                 let mut n = t.normal;
                 if t.double_sided && rng.uniform() < 0.5 {
                     n = -n;
@@ -306,9 +299,9 @@ impl Light {
                 irradiance: *irradiance,
             }),
             Light::Emissive { triangles, cdf } => {
-                let i = sampling::sample_cdf(cdf, rng.uniform());
+                let i = cdf.sample(rng.uniform());
                 let t = &triangles[i];
-                let pdf_tri = power_weight(t.power()) / cdf.last().copied().unwrap_or(1.0);
+                let pdf_tri = cdf.pmf_of(power_weight(t.power()));
                 let p = t.point(rng.uniform2());
                 let d = p - x;
                 let dist2 = d.length_squared();
@@ -329,6 +322,31 @@ impl Light {
                 })
             }
         }
+    }
+}
+
+/// Chooses a light in proportion to its power ([`power_weight`]): the one light choice of the
+/// photon pass and the caustic pass.
+#[derive(Clone, Debug, Default)]
+pub struct LightSampler {
+    weights: Vec<f32>,
+    distribution: Distribution,
+}
+
+impl LightSampler {
+    /// A sampler over `lights`.
+    pub fn new(lights: &[Light]) -> Self {
+        let weights: Vec<f32> = lights.iter().map(|l| power_weight(l.power())).collect();
+        LightSampler {
+            distribution: Distribution::new(weights.iter().copied()),
+            weights,
+        }
+    }
+
+    /// A light index for the uniform `u`, with its probability.
+    pub fn sample(&self, u: f32) -> (usize, f32) {
+        let l = self.distribution.sample(u);
+        (l, self.distribution.pmf_of(self.weights[l]))
     }
 }
 

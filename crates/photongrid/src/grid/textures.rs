@@ -1,62 +1,12 @@
-//! Assumed radius from the filtered photon-count textures (METHOD.md eq. (3)), bilinear
-//! interpolation between cells, the blend with the real kNN radius and the shadow fallback.
+//! The paper's photon-count textures: one per plane, counted from the photons that landed on
+//! the plane's triangles, wavelet-filtered, read back with bilinear interpolation.
 
 use super::planes::{detect_planes, PlaneParams, PlaneSet, NO_PLANE};
 use super::wavelet::{denoise_counts, max_levels, DenoiseReport, Field2, Threshold, Wavelet};
 use crate::photon::Photon;
+use crate::settings::GridQuantity;
 use glam::Vec3;
 use rayon::prelude::*;
-
-/// What a cell of the texture accumulates.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
-#[serde(rename_all = "lowercase")]
-pub enum GridQuantity {
-    /// Number of photons. The kNN radius is set by how many photons lie around a point, so
-    /// counts predict it directly, whatever each photon's power.
-    Count,
-    /// Flux, expressed in "mean photons" (cell flux / mean photon flux of the plane): equals
-    /// the count when photons carry equal power, differs after coloured bounces.
-    Flux,
-}
-
-/// Assumed radius, METHOD.md eq. (3): `r_a² = n m² / (N π)` for `n` neighbours, cell area
-/// `m²` and `N` photons in the cell.
-pub fn assumed_radius(neighbours: usize, cell_area: f32, count: f32) -> f32 {
-    (neighbours as f32 * cell_area / (count.max(1e-12) * std::f32::consts::PI)).sqrt()
-}
-
-/// The paper's correction: `r = r_a + α (r_k − r_a)`.
-pub fn blended_radius(r_a: f32, r_k: f32, alpha: f32) -> f32 {
-    r_a + alpha * (r_k - r_a)
-}
-
-/// Exponent of the progressive neighbour schedule, the α of progressive photon mapping
-/// (Hachisuka et al. 2008; 2/3 as in pbrt-v4's SPPM).
-pub const PROGRESSIVE_ALPHA: f64 = 2.0 / 3.0;
-
-/// Neighbours for pass `pass` (0-based) of a progressive render with `n` neighbours:
-/// `(n_all, k_pass)` = (neighbours counted among all photons of passes 0..=pass, neighbours
-/// within the current pass's map).
-///
-/// How the grid method's radius evolves over passes. The count textures accumulate every
-/// pass's photons (refiltered each pass), so after P passes a cell holds `N ≈ P c` photons.
-/// Keeping `n` fixed would give `r_a² = n m²/(π N) ∝ 1/P`: the bias vanishes, but each pass
-/// then gathers only `≈ n/P` of its own photons, and the average of P such pass estimates keeps
-/// a variance ∝ `(1/P²) Σ p/n ≈ 1/(2n)` that never falls. Growing `n_all = n P^α` instead gives
-/// `r_a² ∝ P^(α−1)` (radius ∝ P^(−1/6) for α = 2/3), the rate of (S)PPM's radius reduction
-/// (Knaus & Zwicker 2011, "Progressive photon mapping: a probabilistic approach"):
-/// each pass gathers `≈ n P^(α−1)` photons of its own map, so the average of the pass estimates
-/// has variance ∝ `P^(−α)` and bias ∝ `r² ∝ P^(α−1)`; both go to zero. The kNN radius it is
-/// blended with is taken in the pass's own map with `k_pass = n_all / P` neighbours (the
-/// same expected radius as `n_all` neighbours among all photons so far). Pass 0 gives `(n, n)`:
-/// a one-pass render is the paper's method unchanged.
-pub fn progressive_neighbours(n: usize, pass: u32) -> (usize, usize) {
-    let p = pass as f64 + 1.0;
-    let n_all = ((n as f64) * p.powf(PROGRESSIVE_ALPHA)).round().max(1.0);
-    let k_pass = (n_all / p).round().max(1.0);
-    (n_all as usize, k_pass as usize)
-}
 
 /// A count texture per detected plane, before and after the wavelet step.
 #[derive(Clone, Debug)]
@@ -223,19 +173,6 @@ mod tests {
     }
 
     #[test]
-    fn assumed_radius_matches_uniform_field() {
-        // A uniform field of density ρ photons/m²: the disc holding n photons has r² = n/(πρ),
-        // and a cell of area m² holds N = ρ m², so eq. (3) must give the same radius.
-        let rho = 250_000.0f32;
-        let cell_area = (2.0f32 / 128.0).powi(2);
-        let n = 100;
-        let r = assumed_radius(n, cell_area, rho * cell_area);
-        assert!((r * r - n as f32 / (std::f32::consts::PI * rho)).abs() / (r * r) < 1e-5);
-        assert_eq!(blended_radius(1.0, 2.0, 0.1), 1.1);
-        assert_eq!(blended_radius(1.0, 2.0, 1.0), 2.0);
-    }
-
-    #[test]
     fn counts_a_uniform_field_and_interpolates() {
         let tris = quad(2.0);
         let set = PlaneGrids::detect(&tris, 16);
@@ -270,18 +207,6 @@ mod tests {
         // A photon that is not counted changes nothing.
         let none = PlaneGrids::count(g.set.clone(), &photons, &tri, GridQuantity::Count, |_| false);
         assert_eq!(none.raw[0].sum(), 0.0);
-    }
-
-    #[test]
-    fn progressive_schedule_starts_at_n_and_shrinks_the_radius_like_sppm() {
-        assert_eq!(progressive_neighbours(100, 0), (100, 100));
-        let (n8, k8) = progressive_neighbours(100, 7); // P = 8: n 8^(2/3) = 400, k = 50
-        assert_eq!((n8, k8), (400, 50));
-        // r_a² ∝ n_all / (P c): 8 passes → 400/(8 c) = half of pass 0's 100/c.
-        let r0 = assumed_radius(100, 1.0, 1000.0);
-        let r8 = assumed_radius(n8, 1.0, 8000.0);
-        assert!(((r8 / r0).powi(2) - 0.5).abs() < 1e-4);
-        assert_eq!(progressive_neighbours(1, 1_000_000).1, 1);
     }
 
     #[test]

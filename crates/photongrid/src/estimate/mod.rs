@@ -1,0 +1,178 @@
+//! Radiance from photons. Every method is one variant of [`Estimator`], a closed set behind
+//! one interface: [`Method::needs`] says what a method needs from the photon pass (grids,
+//! the triangle each photon landed on, how passes accumulate), [`Estimator::gather`] returns
+//! the photons around a point with the radius the method chooses, and [`density`] holds the
+//! formulas (eq. (1), the kNN correction, eq. (3), the progressive schedules) once.
+//!
+//! To add an estimator: a [`Method`] variant (settings), its [`Needs`], an [`Estimator`]
+//! variant built in [`Estimator::for_pass`], and its arm in [`Estimator::gather`]; the compiler
+//! lists every `match` to update.
+
+pub mod density;
+pub mod irradiance;
+pub mod photon_map;
+pub mod sppm;
+
+pub use irradiance::IrradianceCache;
+pub use photon_map::{Gather, PhotonMap, NORMAL_AGREEMENT};
+
+use crate::grid::{Assumed, Grids};
+use crate::photon::neighbours::KnnBuffer;
+use crate::settings::{Method, Settings};
+use density::{blended_radius, progressive_neighbours};
+use glam::Vec3;
+
+/// How a camera's image accumulates over progressive passes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Accumulation {
+    /// Each pass is a complete image; the passes' images are averaged.
+    Average,
+    /// Each camera sample keeps its radius, count and flux across passes (SPPM).
+    PerSample,
+}
+
+/// What a method needs from the photon pass.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Needs {
+    /// Count textures on planes and voxels ([`Grids`]), accumulated over passes.
+    pub grids: bool,
+    /// The triangle each photon landed on (to count it into its plane's texture).
+    pub photon_triangles: bool,
+    /// How passes accumulate.
+    pub accumulation: Accumulation,
+}
+
+impl Method {
+    /// What this method needs from the photon pass.
+    pub fn needs(self) -> Needs {
+        match self {
+            Method::Knn => Needs {
+                grids: false,
+                photon_triangles: false,
+                accumulation: Accumulation::Average,
+            },
+            Method::Adaptive => Needs {
+                grids: true,
+                photon_triangles: true,
+                accumulation: Accumulation::Average,
+            },
+            Method::Sppm => Needs {
+                grids: false,
+                photon_triangles: false,
+                accumulation: Accumulation::PerSample,
+            },
+        }
+    }
+}
+
+/// A diffuse point where radiance is estimated.
+#[derive(Clone, Copy, Debug)]
+pub struct Query {
+    /// Position.
+    pub position: Vec3,
+    /// Geometric normal facing the viewer: photons must agree with it.
+    pub facing_normal: Vec3,
+    /// Geometric normal of the triangle's front face (the voxel grid's bins follow it).
+    pub geometric_normal: Vec3,
+    /// The triangle (its plane grid, if any).
+    pub triangle: u32,
+}
+
+/// One pass's photon estimate, ready for queries.
+#[derive(Clone, Copy)]
+pub enum Estimator<'a> {
+    /// The `k` nearest photons (Jensen).
+    Knn {
+        /// This pass's photons.
+        map: &'a PhotonMap,
+        /// Neighbours.
+        k: usize,
+    },
+    /// The paper's: the assumed radius of `n_all` neighbours from the grids' filtered counts
+    /// (which hold every pass's photons so far), blended with the kNN radius of `k` neighbours
+    /// in this pass's map; kNN where no grid covers the point or in shadow.
+    Adaptive {
+        /// This pass's photons.
+        map: &'a PhotonMap,
+        /// The grids (none built: plain kNN).
+        grids: Option<&'a Grids>,
+        /// Neighbours among all passes' photons ([`progressive_neighbours`]).
+        n_all: usize,
+        /// Neighbours within this pass's map.
+        k: usize,
+        /// Blend factor α of [`blended_radius`].
+        alpha: f32,
+        /// Filtered count below which the kNN radius is used.
+        shadow_count: f32,
+    },
+    /// SPPM: each camera sample keeps its own radius ([`sppm::SppmPixel`]); a query gives the
+    /// kNN radius that starts it.
+    Sppm {
+        /// This pass's photons.
+        map: &'a PhotonMap,
+        /// Neighbours of the starting radius.
+        k: usize,
+    },
+}
+
+impl<'a> Estimator<'a> {
+    /// The estimator of `settings.method` for pass `pass` (0-based) over `map` and the grids.
+    pub fn for_pass(settings: &Settings, pass: u32, map: &'a PhotonMap, grids: Option<&'a Grids>) -> Self {
+        let k = settings.neighbours;
+        match settings.method {
+            Method::Knn => Estimator::Knn { map, k },
+            Method::Sppm => Estimator::Sppm { map, k },
+            Method::Adaptive => {
+                let (n_all, k) = progressive_neighbours(k, pass);
+                Estimator::Adaptive {
+                    map,
+                    grids,
+                    n_all,
+                    k,
+                    alpha: settings.alpha,
+                    shadow_count: settings.shadow_count,
+                }
+            }
+        }
+    }
+
+    /// This pass's photon map.
+    pub fn map(&self) -> &'a PhotonMap {
+        match *self {
+            Estimator::Knn { map, .. } | Estimator::Adaptive { map, .. } | Estimator::Sppm { map, .. } => map,
+        }
+    }
+
+    /// The photons around `q` with the radius the method chooses.
+    pub fn gather(&self, q: &Query, buf: &mut KnnBuffer) -> Gather {
+        match *self {
+            Estimator::Knn { map, k } | Estimator::Sppm { map, k } => map.knn(q.position, q.facing_normal, k, buf),
+            Estimator::Adaptive {
+                map,
+                grids,
+                n_all,
+                k,
+                alpha,
+                shadow_count,
+            } => {
+                let gk = map.knn(q.position, q.facing_normal, k, buf);
+                let Some(grids) = grids else { return gk };
+                let r_a = match grids.assumed(q.triangle, q.position, q.geometric_normal, n_all, shadow_count) {
+                    Assumed::Radius(r) => r,
+                    // Shadows, dark corners, surfaces no grid covers: the real kNN radius.
+                    Assumed::Shadow | Assumed::Uncovered => return gk,
+                };
+                if gk.count < k {
+                    return gk; // fewer than k photons within the largest radius: nothing to blend
+                }
+                let r_k = gk.r2.sqrt();
+                let r = blended_radius(r_a, r_k, alpha).min(map.max_radius);
+                if r <= r_k {
+                    map.knn_within(buf, r)
+                } else {
+                    map.within(q.position, q.facing_normal, r)
+                }
+            }
+        }
+    }
+}
