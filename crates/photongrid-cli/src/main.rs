@@ -59,6 +59,14 @@ enum Command {
     /// Error against time: render methods × photon counts × scenes × seeds against references;
     /// write bench.json, SVG charts and table.md.
     Bench(BenchArgs),
+    /// Print the render settings: their defaults (jobs-file keys), or with --schema a JSON
+    /// description of each (flag, heading, help, default, choices) for front ends such as the
+    /// Blender add-on.
+    Settings {
+        /// Print the JSON schema instead of the defaults.
+        #[arg(long)]
+        schema: bool,
+    },
 }
 
 #[derive(Args, Debug)]
@@ -258,6 +266,7 @@ fn run(cli: Cli) -> Result<()> {
             json,
         } => compare(&image, &reference, mask.as_deref(), block, json),
         Command::Bench(args) => bench(args),
+        Command::Settings { schema } => settings_command(schema),
     }
 }
 
@@ -342,6 +351,64 @@ fn check_writable(path: &Path) -> Result<()> {
         bail!("{}: is a folder, not a file name", path.display());
     }
     Ok(())
+}
+
+/// The settings' defaults, or their schema derived from the same clap arguments `render`
+/// takes (so front ends never copy names, defaults or choices).
+fn settings_command(schema: bool) -> Result<()> {
+    let defaults = serde_json::to_value(Settings::default())?;
+    if !schema {
+        println!("{}", serde_json::to_string_pretty(&defaults)?);
+        return Ok(());
+    }
+    use clap::Args as _;
+    let cmd = Settings::augment_args(clap::Command::new("settings"));
+    let items: Vec<serde_json::Value> = cmd
+        .get_arguments()
+        .filter_map(|a| {
+            let key = a.get_id().as_str().to_string();
+            let flag = a.get_long()?;
+            let choices: Vec<serde_json::Value> = a
+                .get_possible_values()
+                .iter()
+                .filter(|_| a.get_action().takes_values())
+                .map(|v| serde_json::json!({"value": v.get_name(), "help": v.get_help().map(|h| h.to_string())}))
+                .collect();
+            Some(serde_json::json!({
+                "key": key,
+                "flag": format!("--{flag}"),
+                "heading": a.get_help_heading(),
+                "help": a.get_long_help().or(a.get_help()).map(|h| h.to_string()),
+                "default": defaults.get(&key).cloned().unwrap_or(serde_json::Value::Null),
+                "type": settings_type(a, !choices.is_empty()),
+                "optional": defaults.get(&key).is_none_or(|v| v.is_null()),
+                "choices": choices,
+            }))
+        })
+        .collect();
+    let doc = serde_json::json!({"version": env!("CARGO_PKG_VERSION"), "settings": items});
+    println!("{}", serde_json::to_string_pretty(&doc)?);
+    Ok(())
+}
+
+/// The JSON type of a setting, from the type its flag parses to.
+fn settings_type(a: &clap::Arg, choice: bool) -> &'static str {
+    use std::any::TypeId;
+    let t = a.get_value_parser().type_id();
+    if choice {
+        "choice"
+    } else if [TypeId::of::<f32>(), TypeId::of::<f64>()].iter().any(|id| t == *id) {
+        "number"
+    } else if [TypeId::of::<u32>(), TypeId::of::<u64>(), TypeId::of::<usize>()]
+        .iter()
+        .any(|id| t == *id)
+    {
+        "integer"
+    } else if t == TypeId::of::<bool>() {
+        "boolean"
+    } else {
+        "string"
+    }
 }
 
 fn set_threads(threads: Option<usize>) -> Result<()> {

@@ -4,7 +4,7 @@
 use photongrid::film::Film;
 use photongrid::output::{write_exr, AovSelection};
 use photongrid::Rgb;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
 
 const BIN: &str = env!("CARGO_BIN_EXE_photongrid");
@@ -22,13 +22,6 @@ fn ok(args: &[&str]) -> Output {
         String::from_utf8_lossy(&out.stderr)
     );
     out
-}
-
-fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("pg-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
 }
 
 fn s(p: &Path) -> &str {
@@ -53,7 +46,8 @@ fn svg_texts(svg: &str) -> Vec<String> {
 
 #[test]
 fn bench_runs_a_matrix_and_writes_json_charts_and_table() {
-    let root = temp_dir("bench-it");
+    let tmp = photongrid_testkit::TempDir::new("bench-it");
+    let root = tmp.path().to_path_buf();
     let scenes = root.join("scenes");
     let refs = scenes.join("refs");
     std::fs::create_dir_all(&refs).unwrap();
@@ -218,6 +212,4 @@ fn bench_runs_a_matrix_and_writes_json_charts_and_table() {
     ]);
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("must divide"));
-
-    std::fs::remove_dir_all(&root).unwrap();
 }
