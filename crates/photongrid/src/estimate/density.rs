@@ -37,10 +37,11 @@ pub fn knn_flux_correction(k: usize) -> f32 {
     }
 }
 
-/// Assumed radius, METHOD.md eq. (3): `r_a² = n m² / (N π)` for `n` neighbours, cell area
-/// `m²` and `N` photons in the cell.
-pub fn assumed_radius(neighbours: usize, cell_area: f32, count: f32) -> f32 {
-    (neighbours as f32 * cell_area / (count.max(1e-12) * PI)).sqrt()
+/// The radius of a disc holding `k` photons where there are `density` photons per m²:
+/// `r² = k / (π ρ)`. With `ρ = N / m²` for `N` photons in a cell of area `m²` this is the
+/// paper's assumed radius, METHOD.md eq. (3): `r_a² = n m² / (N π)`.
+pub fn assumed_radius(k: usize, density: f32) -> f32 {
+    (k as f32 / (PI * density)).sqrt()
 }
 
 /// The paper's correction: `r = r_a + α (r_k − r_a)`.
@@ -93,8 +94,9 @@ mod tests {
         let rho = 250_000.0f32;
         let cell_area = (2.0f32 / 128.0).powi(2);
         let n = 100;
-        let r = assumed_radius(n, cell_area, rho * cell_area);
-        assert!((r * r - n as f32 / (PI * rho)).abs() / (r * r) < 1e-5);
+        let count = rho * cell_area;
+        let r = assumed_radius(n, count / cell_area);
+        assert!((r * r - n as f32 * cell_area / (count * PI)).abs() / (r * r) < 1e-5);
         assert!((photon_density(n as f32, r * r) / rho - 1.0).abs() < 1e-5);
         assert_eq!(blended_radius(1.0, 2.0, 0.1), 1.1);
         assert_eq!(blended_radius(1.0, 2.0, 1.0), 2.0);
@@ -118,8 +120,8 @@ mod tests {
         let (n8, k8) = progressive_neighbours(100, 7); // P = 8: n 8^(2/3) = 400, k = 50
         assert_eq!((n8, k8), (400, 50));
         // r_a² ∝ n_all / (P c): 8 passes → 400/(8 c) = half of pass 0's 100/c.
-        let r0 = assumed_radius(100, 1.0, 1000.0);
-        let r8 = assumed_radius(n8, 1.0, 8000.0);
+        let r0 = assumed_radius(100, 1000.0);
+        let r8 = assumed_radius(n8, 8000.0);
         assert!(((r8 / r0).powi(2) - 0.5).abs() < 1e-4);
         assert_eq!(progressive_neighbours(1, 1_000_000).1, 1);
         let (n, f) = progressive_shrink(0.0, 30.0);

@@ -16,10 +16,10 @@ pub mod sppm;
 pub use irradiance::IrradianceCache;
 pub use photon_map::{Gather, PhotonMap, NORMAL_AGREEMENT};
 
-use crate::grid::{Assumed, Grids};
+use crate::grid::{GridSample, Grids};
 use crate::photon::neighbours::KnnBuffer;
 use crate::settings::{Method, Settings};
-use density::{blended_radius, progressive_neighbours};
+use density::{assumed_radius, blended_radius, progressive_neighbours};
 use glam::Vec3;
 
 /// How a camera's image accumulates over progressive passes.
@@ -157,11 +157,16 @@ impl<'a> Estimator<'a> {
             } => {
                 let gk = map.knn(q.position, q.facing_normal, k, buf);
                 let Some(grids) = grids else { return gk };
-                let r_a = match grids.assumed(q.triangle, q.position, q.geometric_normal, n_all, shadow_count) {
-                    Assumed::Radius(r) => r,
+                let r_a = match grids.sample(q.triangle, q.position, q.geometric_normal) {
+                    GridSample::Covered { count, density } if count >= shadow_count && density > 0.0 => {
+                        assumed_radius(n_all, density)
+                    }
                     // Shadows, dark corners, surfaces no grid covers: the real kNN radius.
-                    Assumed::Shadow | Assumed::Uncovered => return gk,
+                    _ => return gk,
                 };
+                if !r_a.is_finite() {
+                    return gk;
+                }
                 if gk.count < k {
                     return gk; // fewer than k photons within the largest radius: nothing to blend
                 }

@@ -9,7 +9,6 @@ pub mod wavelet;
 
 pub use textures::PlaneGrids;
 
-use crate::estimate::density::assumed_radius;
 use crate::photon::Photon;
 use crate::scene::Scene;
 use crate::settings::{GridMode, GridQuantity, Settings, ThresholdChoice, WaveletChoice};
@@ -71,14 +70,18 @@ impl From<&Settings> for GridParams {
 /// voxel grid (a few small curved objects do not pay for one).
 pub const AUTO_VOXEL_MIN_AREA_SHARE: f32 = 0.05;
 
-/// What the grids say about the radius at a point.
+/// What the grids know at a point: the filtered photon count of its cell (plane) or voxel bin,
+/// and the photon density there.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Assumed {
-    /// The assumed radius r_a.
-    Radius(f32),
-    /// Covered by a grid, but too few photons: use r_k (the paper's shadow fallback).
-    Shadow,
-    /// No grid covers the point: use r_k.
+pub enum GridSample {
+    /// Covered by a grid.
+    Covered {
+        /// Filtered photons per cell (or per voxel bin): the shadow test's quantity.
+        count: f32,
+        /// Filtered photons per m².
+        density: f32,
+    },
+    /// No grid covers the point.
     Uncovered,
 }
 
@@ -194,24 +197,22 @@ impl Grids {
         self.on_plane.get(triangle as usize).copied().unwrap_or(false)
     }
 
-    /// The assumed radius for `k` neighbours at `p` on `triangle` (geometric front normal
-    /// `normal`), or why there is none.
-    pub fn assumed(&self, triangle: u32, p: Vec3, normal: Vec3, k: usize, shadow_count: f32) -> Assumed {
+    /// The filtered count and density at `p` on `triangle` (geometric front normal `normal`).
+    pub fn sample(&self, triangle: u32, p: Vec3, normal: Vec3) -> GridSample {
         if self.on_plane.get(triangle as usize).copied().unwrap_or(false) {
             if let Some((count, cell_area)) = self.planes.as_ref().and_then(|g| g.count_at(triangle, p)) {
-                if count < shadow_count {
-                    return Assumed::Shadow;
-                }
-                return Assumed::Radius(assumed_radius(k, cell_area, count));
+                return GridSample::Covered {
+                    count,
+                    density: count / cell_area,
+                };
             }
         } else if let Some(v) = &self.voxels {
-            return match (v.count_at(p, normal), v.assumed_radius(p, normal, k)) {
-                (Some(c), Some(r)) if c >= shadow_count && r.is_finite() => Assumed::Radius(r),
-                (Some(_), _) => Assumed::Shadow,
-                _ => Assumed::Uncovered,
-            };
+            if let Some(count) = v.count_at(p, normal) {
+                let density = v.density_at(p, normal).unwrap_or(0.0);
+                return GridSample::Covered { count, density };
+            }
         }
-        Assumed::Uncovered
+        GridSample::Uncovered
     }
 
     /// Memory of all grids.
