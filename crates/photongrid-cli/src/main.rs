@@ -498,7 +498,7 @@ fn render(a: RenderArgs) -> Result<()> {
         grids,
     } = pipeline::render(&request, &progress, checkpoint)?;
     report.seconds.load = load_seconds;
-    if let (Some(dir), Some(g)) = (&a.dump_grids, grids.as_ref().and_then(|g| g.planes.as_ref())) {
+    if let (Some(dir), Some(g)) = (&a.dump_grids, grids.paper.as_ref().and_then(|g| g.planes.as_ref())) {
         std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
         for (i, (raw, filtered)) in g.raw.iter().zip(&g.filtered).enumerate() {
             output::write_field_exr(&dir.join(format!("plane{i:03}_counts.exr")), raw)?;

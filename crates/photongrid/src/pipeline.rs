@@ -5,7 +5,9 @@
 //! render through [`render`], so what is measured is what users run.
 
 use crate::accel::Accel;
-use crate::estimate::{Estimator, IrradianceCache, PhotonMap};
+use crate::estimate::{Estimator, IrradianceCache, PassGrids, PhotonMap};
+use crate::grid::multiscale::{MultiscaleGrids, MultiscaleParams};
+use crate::grid::PlaneGrids;
 use crate::film::Film;
 use crate::grid::{GridParams, Grids};
 use crate::photon::{trace_photons, Photon, PhotonKind, PhotonStats, TraceSettings};
@@ -184,7 +186,21 @@ pub struct GridReport {
 }
 
 impl GridReport {
-    fn of(g: &Grids) -> Self {
+    fn of(state: &GridState) -> Option<Self> {
+        let mut report = state.paper.as_ref().map(GridReport::of_paper).unwrap_or_default();
+        if let Some(m) = &state.multiscale {
+            report.choice.push(format!(
+                "multiscale: {} planes (mirrors and glass excluded), {:.1} MB",
+                m.textures.len(),
+                m.memory_bytes() as f64 / 1e6
+            ));
+            report.choice.extend(m.describe());
+            report.memory_bytes += m.memory_bytes();
+        }
+        (state.paper.is_some() || state.multiscale.is_some()).then_some(report)
+    }
+
+    fn of_paper(g: &Grids) -> Self {
         GridReport {
             choice: g.choice.clone(),
             memory_bytes: g.memory_bytes(),
@@ -238,8 +254,8 @@ pub struct Rendered {
     pub films: Vec<Film>,
     /// The report.
     pub report: RenderReport,
-    /// The accumulated grids, when built.
-    pub grids: Option<Grids>,
+    /// The accumulated grids, those the estimate built.
+    pub grids: GridState,
 }
 
 /// Writes the images so far while passes run (`--checkpoint`).
@@ -357,7 +373,7 @@ pub fn render(
         })
         .collect();
     let mut render_seconds = vec![0.0; cameras.len()];
-    let mut grids = None;
+    let mut grids = GridState::default();
     let (mut last, mut last_checkpoint) = (0.0f64, Instant::now());
     let stop = loop {
         let done = report.passes.count;
@@ -369,7 +385,7 @@ pub fn render(
         report.photons.add(&photons.stats);
         report.memory.photon_map_bytes = report.memory.photon_map_bytes.max(photons.map.memory_bytes());
         let input = PhotonData {
-            estimator: Estimator::for_pass(settings, done, &photons.map, grids.as_ref()),
+            estimator: Estimator::for_pass(settings, done, &photons.map, grids.view()),
             irradiance: photons.irradiance.as_ref(),
         };
         for (i, (camera, acc)) in cameras.iter().zip(&mut accs).enumerate() {
@@ -413,9 +429,9 @@ pub fn render(
         })
         .collect();
     report.memory.bvh_bytes = accel.memory_bytes();
-    report.memory.grids_bytes = grids.as_ref().map(Grids::memory_bytes).unwrap_or(0);
+    report.memory.grids_bytes = grids.memory_bytes();
     report.memory.peak_bytes = peak_memory_bytes();
-    report.grids = grids.as_ref().map(GridReport::of);
+    report.grids = GridReport::of(&grids);
     report.cpu_seconds = cpu_seconds();
     Ok(Rendered { films, report, grids })
 }
@@ -428,6 +444,66 @@ fn build_accel(scene: &Scene, progress: &Progress<'_>, times: &mut PhaseTimes) -
     };
     times.bvh += phase.finish();
     accel
+}
+
+/// The grids accumulated over passes, those the estimate needs.
+#[derive(Default)]
+pub struct GridState {
+    /// The paper's count textures and voxels.
+    pub paper: Option<Grids>,
+    /// The multiscale flux pyramids.
+    pub multiscale: Option<MultiscaleGrids>,
+}
+
+impl GridState {
+    fn view(&self) -> PassGrids<'_> {
+        PassGrids {
+            paper: self.paper.as_ref(),
+            multiscale: self.multiscale.as_ref(),
+        }
+    }
+
+    /// Add a pass's shown photons to the grids the estimate needs (building them at pass 0).
+    fn add(&mut self, scene: &Scene, settings: &Settings, photons: &[Photon], triangles: &[u32]) {
+        let needs = settings.method.needs();
+        if needs.grids {
+            let params = GridParams::from(settings);
+            match self.paper.as_mut() {
+                Some(g) => g.add(scene, photons, triangles, &params),
+                None => {
+                    let g = Grids::build(scene, photons, triangles, &params);
+                    for c in &g.choice {
+                        tracing::info!("{c}");
+                    }
+                    self.paper = Some(g);
+                }
+            }
+        }
+        if needs.multiscale {
+            match self.multiscale.as_mut() {
+                Some(g) => g.add(photons, triangles),
+                None => {
+                    let set = PlaneGrids::detect_receivers(scene, settings.grid_res);
+                    let tris: Vec<[glam::Vec3; 3]> = scene.triangles.iter().map(|t| t.p).collect();
+                    let params = MultiscaleParams {
+                        cell_budget: settings.grid_cells,
+                        photons_per_cell: settings.cell_photons,
+                        ..MultiscaleParams::default()
+                    };
+                    let g = MultiscaleGrids::build(set, &tris, photons, triangles, &params);
+                    for line in g.describe() {
+                        tracing::info!("{line}");
+                    }
+                    self.multiscale = Some(g);
+                }
+            }
+        }
+    }
+
+    fn memory_bytes(&self) -> usize {
+        self.paper.as_ref().map(Grids::memory_bytes).unwrap_or(0)
+            + self.multiscale.as_ref().map(MultiscaleGrids::memory_bytes).unwrap_or(0)
+    }
 }
 
 /// The photons of one pass, reduced to the kinds the camera pass shows and indexed.
@@ -445,7 +521,7 @@ fn trace_pass(
     accel: &Accel,
     settings: &Settings,
     pass: u32,
-    grids: &mut Option<Grids>,
+    grids: &mut GridState,
     progress: &Progress<'_>,
     times: &mut PhaseTimes,
 ) -> PassPhotons {
@@ -495,20 +571,10 @@ fn trace_pass(
         cache
     });
     let (photons, photon_triangles) = shown_photons(settings, photons, photon_triangles);
-    if needs.grids {
+    if needs.grids || needs.multiscale {
         let phase = progress.phase("grids", 0);
         let _s = tracing::info_span!("grids", pass).entered();
-        let params = GridParams::from(settings);
-        match grids.as_mut() {
-            Some(g) => g.add(scene, &photons, &photon_triangles, &params),
-            None => {
-                let g = Grids::build(scene, &photons, &photon_triangles, &params);
-                for c in &g.choice {
-                    tracing::info!("{c}");
-                }
-                *grids = Some(g);
-            }
-        }
+        grids.add(scene, settings, &photons, &photon_triangles);
         times.grids += phase.finish();
     }
     drop(photon_triangles);
@@ -607,8 +673,8 @@ pub struct Prepared {
     pub map: PhotonMap,
     /// Photon counts.
     pub photon_stats: PhotonStats,
-    /// The grids (when the estimate needs them).
-    pub grids: Option<Grids>,
+    /// The grids the estimate needs.
+    pub grids: GridState,
     /// Precomputed irradiance for final gathering.
     pub irradiance: Option<IrradianceCache>,
 }
@@ -623,7 +689,7 @@ pub fn prepare(
     settings.validate()?;
     check_photon_memory(settings.photons, caustic_photons(scene, settings))?;
     let accel = build_accel(scene, progress, times);
-    let mut grids = None;
+    let mut grids = GridState::default();
     let pass = trace_pass(scene, &accel, settings, 0, &mut grids, progress, times);
     Ok(Prepared {
         accel,
@@ -647,7 +713,7 @@ pub fn render_camera(
     let (w, h) = resolution(camera, settings);
     let mut acc = Accumulator::new(settings.method.needs().accumulation, w, h, settings.spp);
     let input = PhotonData {
-        estimator: Estimator::for_pass(settings, 0, &prepared.map, prepared.grids.as_ref()),
+        estimator: Estimator::for_pass(settings, 0, &prepared.map, prepared.grids.view()),
         irradiance: prepared.irradiance.as_ref(),
     };
     render_pass(scene, &prepared.accel, input, 0, camera, settings, &mut acc, progress);

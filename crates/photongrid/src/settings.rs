@@ -76,6 +76,17 @@ pub struct Settings {
     /// Wavelet levels (at most; fewer on small grids).
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", default_value_t = Settings::default().wavelet_levels))]
     pub wavelet_levels: usize,
+    /// Multiscale estimate: a scale is kept while its estimate stays within this many
+    /// standard deviations of every finer one (higher: smoother, more blur).
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", default_value_t = Settings::default().ici_threshold))]
+    pub ici_threshold: f32,
+    /// Multiscale estimate: photons per finest cell where a plane's photons are densest.
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", default_value_t = Settings::default().cell_photons))]
+    pub cell_photons: f32,
+    /// Multiscale estimate: finest cells over all planes (about 54 bytes each).
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", value_parser = parse_count, default_value_t = Settings::default().grid_cells))]
+    #[serde(deserialize_with = "count::deserialize")]
+    pub grid_cells: usize,
     /// Whether grid cells count photons or flux.
     #[cfg_attr(feature = "cli", arg(long, value_enum, help_heading = "Grids", default_value_t = Settings::default().grid_quantity))]
     pub grid_quantity: GridQuantity,
@@ -136,6 +147,10 @@ pub enum Method {
     /// Stochastic progressive photon mapping (Hachisuka & Jensen 2009): a radius per camera
     /// sample that shrinks as passes add photons.
     Sppm,
+    /// The grids as the estimator: flux pyramids on the planes, the scale chosen per point
+    /// by intersecting confidence intervals (flat light: wide, edges and caustics: narrow),
+    /// normalised by the surface actually covered; kNN off the planes.
+    Multiscale,
 }
 
 /// Which grids the adaptive estimate uses.
@@ -222,6 +237,9 @@ impl Default for Settings {
             threshold_value: 4.0,
             wavelet_levels: 4,
             grid_quantity: GridQuantity::Count,
+            ici_threshold: 2.0,
+            cell_photons: 2.0,
+            grid_cells: 4 << 20,
             light_samples: 4,
             max_specular_depth: 12,
             split_depth: 2,
@@ -300,6 +318,15 @@ impl Settings {
         }
         if !(self.shadow_count >= 0.0 && self.shadow_count.is_finite()) {
             return Err(e("shadow_count", "must be a number ≥ 0"));
+        }
+        if !(self.ici_threshold > 0.0 && self.ici_threshold.is_finite()) {
+            return Err(e("ici_threshold", "must be a positive number"));
+        }
+        if !(self.cell_photons > 0.0 && self.cell_photons.is_finite()) {
+            return Err(e("cell_photons", "must be a positive number"));
+        }
+        if self.grid_cells == 0 {
+            return Err(e("grid_cells", "must be at least 1"));
         }
         if self.passes == Some(0) {
             return Err(e("passes", "must be at least 1"));

@@ -182,7 +182,7 @@ fn shadow_fallback_switches_where_it_should() {
         ..Settings::default()
     };
     let prepared = prepare_adaptive(&scene, &settings);
-    let grids = prepared.grids.as_ref().and_then(|g| g.planes.as_ref()).unwrap();
+    let grids = prepared.grids.paper.as_ref().and_then(|g| g.planes.as_ref()).unwrap();
     let floor_tri = (0..scene.triangles.len())
         .find(|&t| scene.triangles[t].p.iter().all(|p| p.y == 0.0))
         .unwrap() as u32;
@@ -298,7 +298,7 @@ fn plane_without_photons_and_tiny_plane() {
             ..Settings::default()
         };
         let prepared = prepare_adaptive(&scene, &settings);
-        let grids = prepared.grids.as_ref().and_then(|g| g.planes.as_ref()).unwrap();
+        let grids = prepared.grids.paper.as_ref().and_then(|g| g.planes.as_ref()).unwrap();
         let plane = grids.set.plane_of_triangle[dark_tri];
         assert_ne!(plane, NO_PLANE, "the dark quad should be a plane");
         assert_eq!(grids.raw[plane as usize].sum(), 0.0);
@@ -357,7 +357,7 @@ fn plane_without_photons_and_tiny_plane() {
             ..Settings::default()
         };
         let prepared = prepare_adaptive(&scene, &settings);
-        let grids = prepared.grids.as_ref().and_then(|g| g.planes.as_ref()).unwrap();
+        let grids = prepared.grids.paper.as_ref().and_then(|g| g.planes.as_ref()).unwrap();
         assert_eq!(grids.set.planes.len(), 2, "floor and tiny quad");
         let plane = grids.set.plane_of_triangle[tiny_tri];
         assert_ne!(plane, NO_PLANE);

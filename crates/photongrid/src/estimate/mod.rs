@@ -10,12 +10,14 @@
 
 pub mod density;
 pub mod irradiance;
+pub mod multiscale;
 pub mod photon_map;
 pub mod sppm;
 
 pub use irradiance::IrradianceCache;
 pub use photon_map::{Gather, PhotonMap, NORMAL_AGREEMENT};
 
+use crate::grid::multiscale::MultiscaleGrids;
 use crate::grid::{GridSample, Grids};
 use crate::photon::neighbours::KnnBuffer;
 use crate::settings::{Method, Settings};
@@ -36,6 +38,8 @@ pub enum Accumulation {
 pub struct Needs {
     /// Count textures on planes and voxels ([`Grids`]), accumulated over passes.
     pub grids: bool,
+    /// Flux pyramids on the planes ([`MultiscaleGrids`]), accumulated over passes.
+    pub multiscale: bool,
     /// The triangle each photon landed on (to count it into its plane's texture).
     pub photon_triangles: bool,
     /// How passes accumulate.
@@ -48,18 +52,27 @@ impl Method {
         match self {
             Method::Knn => Needs {
                 grids: false,
+                multiscale: false,
                 photon_triangles: false,
                 accumulation: Accumulation::Average,
             },
             Method::Adaptive => Needs {
                 grids: true,
+                multiscale: false,
                 photon_triangles: true,
                 accumulation: Accumulation::Average,
             },
             Method::Sppm => Needs {
                 grids: false,
+                multiscale: false,
                 photon_triangles: false,
                 accumulation: Accumulation::PerSample,
+            },
+            Method::Multiscale => Needs {
+                grids: false,
+                multiscale: true,
+                photon_triangles: true,
+                accumulation: Accumulation::Average,
             },
         }
     }
@@ -76,6 +89,15 @@ pub struct Query {
     pub geometric_normal: Vec3,
     /// The triangle (its plane grid, if any).
     pub triangle: u32,
+}
+
+/// The grids an estimate may read (those its [`Needs`] asked for).
+#[derive(Clone, Copy, Default)]
+pub struct PassGrids<'a> {
+    /// The paper's count textures and voxels.
+    pub paper: Option<&'a Grids>,
+    /// The multiscale flux pyramids.
+    pub multiscale: Option<&'a MultiscaleGrids>,
 }
 
 /// One pass's photon estimate, ready for queries.
@@ -105,6 +127,18 @@ pub enum Estimator<'a> {
         /// Filtered count below which the kNN radius is used.
         shadow_count: f32,
     },
+    /// The grids as the estimator ([`multiscale::gather`]): on a plane, each photon layer's
+    /// flux at the widest scale consistent with all finer ones; kNN elsewhere.
+    Multiscale {
+        /// This pass's photons (the fallback off the planes).
+        map: &'a PhotonMap,
+        /// The flux pyramids (every pass's photons so far).
+        grids: Option<&'a MultiscaleGrids>,
+        /// Neighbours of the kNN fallback.
+        k: usize,
+        /// Confidence-interval width in standard deviations.
+        gamma: f32,
+    },
     /// SPPM: each camera sample keeps its own radius ([`sppm::SppmPixel`]); a query gives the
     /// kNN radius that starts it.
     Sppm {
@@ -117,16 +151,22 @@ pub enum Estimator<'a> {
 
 impl<'a> Estimator<'a> {
     /// The estimator of `settings.method` for pass `pass` (0-based) over `map` and the grids.
-    pub fn for_pass(settings: &Settings, pass: u32, map: &'a PhotonMap, grids: Option<&'a Grids>) -> Self {
+    pub fn for_pass(settings: &Settings, pass: u32, map: &'a PhotonMap, grids: PassGrids<'a>) -> Self {
         let k = settings.neighbours;
         match settings.method {
             Method::Knn => Estimator::Knn { map, k },
             Method::Sppm => Estimator::Sppm { map, k },
+            Method::Multiscale => Estimator::Multiscale {
+                map,
+                grids: grids.multiscale,
+                k,
+                gamma: settings.ici_threshold,
+            },
             Method::Adaptive => {
                 let (n_all, k) = progressive_neighbours(k, pass);
                 Estimator::Adaptive {
                     map,
-                    grids,
+                    grids: grids.paper,
                     n_all,
                     k,
                     alpha: settings.alpha,
@@ -139,7 +179,10 @@ impl<'a> Estimator<'a> {
     /// This pass's photon map.
     pub fn map(&self) -> &'a PhotonMap {
         match *self {
-            Estimator::Knn { map, .. } | Estimator::Adaptive { map, .. } | Estimator::Sppm { map, .. } => map,
+            Estimator::Knn { map, .. }
+            | Estimator::Adaptive { map, .. }
+            | Estimator::Multiscale { map, .. }
+            | Estimator::Sppm { map, .. } => map,
         }
     }
 
@@ -147,6 +190,12 @@ impl<'a> Estimator<'a> {
     pub fn gather(&self, q: &Query, buf: &mut KnnBuffer) -> Gather {
         match *self {
             Estimator::Knn { map, k } | Estimator::Sppm { map, k } => map.knn(q.position, q.facing_normal, k, buf),
+            Estimator::Multiscale { map, grids, k, gamma } => {
+                match grids.and_then(|g| multiscale::gather(g, q, gamma)) {
+                    Some(g) => g,
+                    None => map.knn(q.position, q.facing_normal, k, buf),
+                }
+            }
             Estimator::Adaptive {
                 map,
                 grids,

@@ -2,6 +2,7 @@
 //! photon-count texture each (wavelet-filtered), and a sparse voxel grid for curved or small
 //! receivers; from the counts follows the assumed radius of METHOD.md eq. (3).
 
+pub mod multiscale;
 pub mod planes;
 pub mod textures;
 pub mod voxels;
@@ -103,9 +104,22 @@ impl Grids {
     pub fn build(scene: &Scene, photons: &[Photon], triangles: &[u32], params: &GridParams) -> Grids {
         let mut choice = Vec::new();
         let mode = params.mode;
-        let total_area = scene.surface_area().max(1e-12);
+        // Mirrors and glass store no photons: they get no grid and do not count as surface.
+        let receives: Vec<bool> = scene
+            .triangles
+            .iter()
+            .map(|t| !scene.materials[t.material as usize].is_specular())
+            .collect();
+        let total_area = scene
+            .triangles
+            .iter()
+            .zip(&receives)
+            .filter(|(_, r)| **r)
+            .map(|(t, _)| t.area())
+            .sum::<f32>()
+            .max(1e-12);
         let plane_set = matches!(mode, GridMode::Auto | GridMode::Planes)
-            .then(|| PlaneGrids::detect(&scene.triangles, params.resolution));
+            .then(|| PlaneGrids::detect_receivers(scene, params.resolution));
         let mut on_plane = vec![false; scene.triangles.len()];
         if let Some(set) = &plane_set {
             for (t, p) in set.plane_of_triangle.iter().enumerate() {
@@ -113,7 +127,7 @@ impl Grids {
             }
             let plane_area: f32 = set.planes.iter().map(|p| p.area).sum();
             choice.push(format!(
-                "{} planes with {}-cell grids cover {:.1} % of the surface",
+                "{} planes with {}-cell grids cover {:.1} % of the receiving surface (mirrors and glass get no grid)",
                 set.planes.len(),
                 params.resolution,
                 100.0 * plane_area / total_area
@@ -122,8 +136,8 @@ impl Grids {
         let off_plane_area: f32 = scene
             .triangles
             .iter()
-            .zip(&on_plane)
-            .filter(|(_, on)| !**on)
+            .zip(on_plane.iter().zip(&receives))
+            .filter(|(_, (on, r))| !**on && **r)
             .map(|(t, _)| t.area())
             .sum();
         let want_voxels = match mode {
@@ -145,7 +159,7 @@ impl Grids {
         });
         let voxels = want_voxels.then(|| {
             // In auto mode voxels cover only what planes do not.
-            let served: Vec<usize> = (0..scene.triangles.len()).filter(|&t| !on_plane[t]).collect();
+            let served: Vec<usize> = (0..scene.triangles.len()).filter(|&t| !on_plane[t] && receives[t]).collect();
             let tris: Vec<[Vec3; 3]> = served.iter().map(|&t| scene.triangles[t].p).collect();
             let area: f32 = served.iter().map(|&t| scene.triangles[t].area()).sum();
             let share = area / total_area;

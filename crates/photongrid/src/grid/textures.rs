@@ -28,6 +28,27 @@ impl PlaneGrids {
         detect_planes(&tris, &PlaneParams::default().with_resolution(resolution))
     }
 
+    /// Find planes among the triangles that receive photons: mirrors and glass store none, so
+    /// they get no grid. Triangle indices are the scene's.
+    pub fn detect_receivers(scene: &crate::scene::Scene, resolution: usize) -> PlaneSet {
+        let receivers: Vec<u32> = (0..scene.triangles.len() as u32)
+            .filter(|&t| !scene.materials[scene.triangles[t as usize].material as usize].is_specular())
+            .collect();
+        let tris: Vec<[Vec3; 3]> = receivers.iter().map(|&t| scene.triangles[t as usize].p).collect();
+        let mut set = detect_planes(&tris, &PlaneParams::default().with_resolution(resolution));
+        let mut of_triangle = vec![NO_PLANE; scene.triangles.len()];
+        for (i, &t) in receivers.iter().enumerate() {
+            of_triangle[t as usize] = set.plane_of_triangle[i];
+        }
+        set.plane_of_triangle = of_triangle;
+        for p in &mut set.planes {
+            for t in &mut p.triangles {
+                *t = receivers[*t as usize];
+            }
+        }
+        set
+    }
+
     /// Count `photons` (landing on `triangles[i]`) into the planes' textures. Photons for
     /// which `counts(p)` is false are left out (e.g. direct photons when shadow rays are used).
     pub fn count(

@@ -1,0 +1,500 @@
+//! Multiscale flux textures on the planes: the grids as an estimator.
+//!
+//! Every plane gets a fine grid, sized from where its photons are densest (not a fixed 128),
+//! holding per cell the photons' flux, the sum of their squared powers (the variance of the
+//! flux in the cell, photons being a compound Poisson process) and the exact area of the
+//! plane's triangles inside the cell. A pyramid of 2×2 block sums above it answers, at any
+//! point and any scale 2^l cells, "how much flux over how much surface, with what variance".
+//! Dividing flux by the surface actually covered makes the estimate correct at the plane's
+//! edges and corners, where a disc of radius r would count area that is not there.
+//!
+//! Photons of different kinds (caustic, global) live in separate layers so that the scale
+//! chosen for one does not limit the other.
+
+use super::planes::{Plane, PlaneSet, NO_PLANE};
+use crate::photon::{Photon, PhotonKind};
+use crate::Rgb;
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+
+/// Rec.709 luminance of a power, the scalar the scale choice tests.
+fn luminance(c: Rgb) -> f32 {
+    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+}
+
+/// Block sums over a cell or a block of cells.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Texel {
+    /// Σ photon flux (W), per channel.
+    pub flux: [f32; 3],
+    /// Σ (luminance of photon flux)²: the variance of the luminance flux sum.
+    pub var: f32,
+    /// Photons.
+    pub count: f32,
+    /// Surface area inside (m²).
+    pub area: f32,
+}
+
+impl Texel {
+    fn add(&mut self, o: &Texel, w: f32) {
+        for c in 0..3 {
+            self.flux[c] += w * o.flux[c];
+        }
+        self.var += w * w * o.var;
+        self.count += w * o.count;
+        self.area += w * o.area;
+    }
+}
+
+/// One level of a pyramid: `w × h` texels, row-major.
+#[derive(Clone, Debug, Default)]
+struct Level {
+    w: usize,
+    h: usize,
+    texels: Vec<Texel>,
+}
+
+impl Level {
+    /// The next coarser level: sums of 2×2 blocks (a border block may have fewer cells).
+    fn coarser(&self) -> Level {
+        let (w, h) = (self.w.div_ceil(2), self.h.div_ceil(2));
+        let mut texels = vec![Texel::default(); w * h];
+        for y in 0..self.h {
+            for x in 0..self.w {
+                texels[(y / 2) * w + x / 2].add(&self.texels[y * self.w + x], 1.0);
+            }
+        }
+        Level { w, h, texels }
+    }
+
+    /// Bilinear interpolation of the texels at continuous texel coordinates (centres at
+    /// i + 0.5), clamped to the texel centres.
+    fn bilinear(&self, x: f32, y: f32) -> Texel {
+        let axis = |g: f32, n: usize| {
+            let t = (g - 0.5).clamp(0.0, (n - 1) as f32);
+            let i0 = (t as usize).min(n - 1);
+            let i1 = (i0 + 1).min(n - 1);
+            (i0, i1, if i1 == i0 { 0.0 } else { t - i0 as f32 })
+        };
+        let (i0, i1, fx) = axis(x, self.w);
+        let (j0, j1, fy) = axis(y, self.h);
+        let mut t = Texel::default();
+        t.add(&self.texels[j0 * self.w + i0], (1.0 - fx) * (1.0 - fy));
+        t.add(&self.texels[j0 * self.w + i1], fx * (1.0 - fy));
+        t.add(&self.texels[j1 * self.w + i0], (1.0 - fx) * fy);
+        t.add(&self.texels[j1 * self.w + i1], fx * fy);
+        t
+    }
+}
+
+/// The layers photons are sorted into: caustics and everything else the estimate shows.
+pub const LAYERS: usize = 2;
+
+/// The layer of a photon kind.
+pub fn layer_of(kind: PhotonKind) -> usize {
+    match kind {
+        PhotonKind::Caustic => 0,
+        _ => 1,
+    }
+}
+
+/// One plane's fine grid and its pyramids (one per layer).
+#[derive(Clone, Debug)]
+pub struct PlaneTexture {
+    /// The plane with the fine grid's resolution.
+    pub plane: Plane,
+    /// Per layer: level 0 (finest) upwards.
+    levels: [Vec<Level>; LAYERS],
+}
+
+/// A scale's estimate at a point.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ScaleEstimate {
+    /// Level (0: finest cells).
+    pub level: usize,
+    /// Kernel sums at the point (flux, variance, area).
+    pub texel: Texel,
+}
+
+impl PlaneTexture {
+    /// The fine cell size (m) and the number of levels.
+    pub fn cell_size(&self) -> f32 {
+        self.plane.size_u / self.plane.res_u as f32
+    }
+
+    /// Levels of `layer`.
+    pub fn level_count(&self, layer: usize) -> usize {
+        self.levels[layer].len()
+    }
+
+    /// Kernel sums of `layer` at `p` on every level, finest first.
+    pub fn scales(&self, layer: usize, p: Vec3) -> impl Iterator<Item = ScaleEstimate> + '_ {
+        let (gx, gy) = self.plane.grid_coords(p);
+        self.levels[layer].iter().enumerate().map(move |(level, lv)| {
+            let s = (1u32 << level) as f32;
+            ScaleEstimate {
+                level,
+                texel: lv.bilinear(gx / s, gy / s),
+            }
+        })
+    }
+
+    /// Memory of the textures.
+    pub fn memory_bytes(&self) -> usize {
+        self.levels
+            .iter()
+            .flatten()
+            .map(|l| l.texels.len() * std::mem::size_of::<Texel>())
+            .sum()
+    }
+}
+
+/// What the multiscale textures are built with.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MultiscaleParams {
+    /// Fine cells in all, over every plane (memory: about 27 bytes per cell and layer).
+    pub cell_budget: usize,
+    /// Photons per fine cell where a plane's photons are densest: sets the finest scale.
+    pub photons_per_cell: f32,
+    /// Most cells along a plane's longer side.
+    pub max_resolution: usize,
+}
+
+impl Default for MultiscaleParams {
+    fn default() -> Self {
+        MultiscaleParams {
+            cell_budget: 4 << 20,
+            photons_per_cell: 2.0,
+            max_resolution: 2048,
+        }
+    }
+}
+
+/// The multiscale textures of every plane, accumulated over passes.
+#[derive(Clone, Debug)]
+pub struct MultiscaleGrids {
+    /// The planes found (mirrors and glass excluded) and the triangle → plane map.
+    pub set: PlaneSet,
+    /// Per plane (same order as `set.planes`).
+    pub textures: Vec<PlaneTexture>,
+    /// Fine level per plane and layer, accumulated raw over passes.
+    fine: Vec<[Level; LAYERS]>,
+    /// Passes accumulated: the flux of each pass is an unbiased estimate, so sums divide by it.
+    pub passes: u32,
+    /// Mean photon power (luminance) per layer over the photons counted, per pass: the
+    /// variance floor of an empty kernel (one photon's worth of uncertainty).
+    pub mean_power: [f32; LAYERS],
+}
+
+impl MultiscaleGrids {
+    /// Size the planes' fine grids from the first pass's photons (landing on `triangles[i]`)
+    /// and count them.
+    pub fn build(set: PlaneSet, tris: &[[Vec3; 3]], photons: &[Photon], triangles: &[u32], params: &MultiscaleParams) -> Self {
+        let dims = fine_resolutions(&set, photons, triangles, params);
+        let planes: Vec<Plane> = set
+            .planes
+            .iter()
+            .zip(&dims)
+            .map(|(p, &(ru, rv))| p.clone().with_resolution(ru, rv))
+            .collect();
+        let coverage: Vec<Vec<f32>> = planes.par_iter().map(|p| coverage(p, tris)).collect();
+        let fine: Vec<[Level; LAYERS]> = planes
+            .iter()
+            .zip(&coverage)
+            .map(|(p, area)| {
+                let level = Level {
+                    w: p.res_u,
+                    h: p.res_v,
+                    texels: area
+                        .iter()
+                        .map(|&a| Texel {
+                            area: a,
+                            ..Texel::default()
+                        })
+                        .collect(),
+                };
+                [level.clone(), level]
+            })
+            .collect();
+        let textures = planes
+            .into_iter()
+            .map(|plane| PlaneTexture {
+                plane,
+                levels: Default::default(),
+            })
+            .collect();
+        let mut g = MultiscaleGrids {
+            set,
+            textures,
+            fine,
+            passes: 0,
+            mean_power: [0.0; LAYERS],
+        };
+        g.add(photons, triangles);
+        g
+    }
+
+    /// Add one pass's photons and rebuild the pyramids.
+    pub fn add(&mut self, photons: &[Photon], triangles: &[u32]) {
+        let (mut power, mut n) = ([0.0f64; LAYERS], [0usize; LAYERS]);
+        for (p, &t) in photons.iter().zip(triangles) {
+            let plane = self.set.plane_of_triangle.get(t as usize).copied().unwrap_or(NO_PLANE);
+            let layer = layer_of(p.kind());
+            let lum = luminance(p.power());
+            power[layer] += lum as f64;
+            n[layer] += 1;
+            if plane == NO_PLANE {
+                continue;
+            }
+            let tex = &self.textures[plane as usize];
+            let Some(cell) = tex.plane.cell_of(p.pos(), f32::INFINITY) else {
+                continue;
+            };
+            let t = &mut self.fine[plane as usize][layer].texels[cell];
+            let f = p.power();
+            t.flux[0] += f.x;
+            t.flux[1] += f.y;
+            t.flux[2] += f.z;
+            t.var += lum * lum;
+            t.count += 1.0;
+        }
+        self.passes += 1;
+        for l in 0..LAYERS {
+            // Running mean of the per-pass mean power.
+            let mean = if n[l] > 0 { (power[l] / n[l] as f64) as f32 } else { 0.0 };
+            let p = self.passes as f32;
+            self.mean_power[l] += (mean - self.mean_power[l]) / p;
+        }
+        let fine = &self.fine;
+        self.textures.par_iter_mut().enumerate().for_each(|(i, tex)| {
+            for (l, level) in fine[i].iter().enumerate() {
+                tex.levels[l] = pyramid(level);
+            }
+        });
+    }
+
+    /// The plane texture serving `triangle`, if any.
+    pub fn texture_of(&self, triangle: u32) -> Option<&PlaneTexture> {
+        match self.set.plane_of_triangle.get(triangle as usize) {
+            Some(&p) if p != NO_PLANE => self.textures.get(p as usize),
+            _ => None,
+        }
+    }
+
+    /// Memory of the textures.
+    pub fn memory_bytes(&self) -> usize {
+        let fine: usize = self.fine.iter().flatten().map(|l| l.texels.len() * std::mem::size_of::<Texel>()).sum();
+        fine + self.textures.iter().map(PlaneTexture::memory_bytes).sum::<usize>()
+    }
+
+    /// One line per plane for reports: size, fine resolution, cell size.
+    pub fn describe(&self) -> Vec<String> {
+        self.textures
+            .iter()
+            .enumerate()
+            .map(|(i, t)| {
+                format!(
+                    "plane {i}: {:.2} × {:.2} m, {}×{} cells of {:.1} mm, {} levels",
+                    t.plane.size_u,
+                    t.plane.size_v,
+                    t.plane.res_u,
+                    t.plane.res_v,
+                    t.cell_size() * 1e3,
+                    t.level_count(0)
+                )
+            })
+            .collect()
+    }
+}
+
+/// Level 0 and its coarser levels, up to a single texel along the shorter side.
+fn pyramid(fine: &Level) -> Vec<Level> {
+    let mut levels = vec![fine.clone()];
+    while {
+        let l = levels.last().expect("level 0");
+        l.w > 1 && l.h > 1
+    } {
+        let next = levels.last().expect("level").coarser();
+        levels.push(next);
+    }
+    levels
+}
+
+/// Fine grid resolution per plane: cells of about `photons_per_cell` photons where the
+/// plane's photons are densest (the 99th percentile of a coarse count), within the
+/// resolution cap and the overall cell budget.
+fn fine_resolutions(set: &PlaneSet, photons: &[Photon], triangles: &[u32], params: &MultiscaleParams) -> Vec<(usize, usize)> {
+    const COARSE: usize = 32;
+    let mut counts: Vec<Vec<u32>> = set.planes.iter().map(|_| vec![0; COARSE * COARSE]).collect();
+    let coarse: Vec<Plane> = set.planes.iter().map(|p| p.clone().with_resolution(COARSE, COARSE)).collect();
+    for (p, &t) in photons.iter().zip(triangles) {
+        let plane = set.plane_of_triangle.get(t as usize).copied().unwrap_or(NO_PLANE);
+        if plane == NO_PLANE {
+            continue;
+        }
+        if let Some(c) = coarse[plane as usize].cell_of(p.pos(), f32::INFINITY) {
+            counts[plane as usize][c] += 1;
+        }
+    }
+    let mut cell: Vec<f32> = coarse
+        .iter()
+        .zip(&counts)
+        .map(|(p, c)| {
+            let mut sorted: Vec<u32> = c.iter().copied().filter(|&n| n > 0).collect();
+            sorted.sort_unstable();
+            let dense = sorted.get(sorted.len().saturating_sub(1) * 99 / 100).copied().unwrap_or(0);
+            let density = dense as f32 / p.cell_area().max(1e-30);
+            let longest = p.size_u.max(p.size_v);
+            let size = if density > 0.0 {
+                (params.photons_per_cell / density).sqrt()
+            } else {
+                longest / 16.0
+            };
+            size.clamp(longest / params.max_resolution as f32, longest / 8.0)
+        })
+        .collect();
+    // Within the budget: grow every cell alike.
+    let cells = |cell: &[f32]| -> f64 {
+        set.planes
+            .iter()
+            .zip(cell)
+            .map(|(p, &c)| ((p.size_u / c).ceil() * (p.size_v / c).ceil()) as f64)
+            .sum()
+    };
+    let total = cells(&cell);
+    if total > params.cell_budget as f64 {
+        let grow = (total / params.cell_budget as f64).sqrt() as f32;
+        for c in &mut cell {
+            *c *= grow;
+        }
+    }
+    set.planes
+        .iter()
+        .zip(&cell)
+        .map(|(p, &c)| {
+            let ru = ((p.size_u / c).ceil() as usize).clamp(1, params.max_resolution);
+            let rv = ((p.size_v / c).ceil() as usize).clamp(1, params.max_resolution);
+            (ru, rv)
+        })
+        .collect()
+}
+
+/// Area of the plane's triangles inside each fine cell (m²), by clipping each triangle
+/// (projected into the plane's grid coordinates) against the cells it overlaps.
+fn coverage(plane: &Plane, tris: &[[Vec3; 3]]) -> Vec<f32> {
+    let (ru, rv) = (plane.res_u, plane.res_v);
+    let cell_area = plane.cell_area();
+    let mut area = vec![0.0f32; ru * rv];
+    for &t in &plane.triangles {
+        let g: Vec<Vec2> = tris[t as usize]
+            .iter()
+            .map(|&p| {
+                let (x, y) = plane.grid_coords(p);
+                Vec2::new(x, y)
+            })
+            .collect();
+        let lo = g[0].min(g[1]).min(g[2]);
+        let hi = g[0].max(g[1]).max(g[2]);
+        let x0 = (lo.x.floor().max(0.0) as usize).min(ru - 1);
+        let x1 = (hi.x.ceil().max(1.0) as usize).min(ru);
+        let y0 = (lo.y.floor().max(0.0) as usize).min(rv - 1);
+        let y1 = (hi.y.ceil().max(1.0) as usize).min(rv);
+        for j in y0..y1 {
+            for i in x0..x1 {
+                let a = clipped_area(&g, i as f32, j as f32);
+                area[j * ru + i] += a * cell_area;
+            }
+        }
+    }
+    // Overlapping triangles (duplicates) must not count twice.
+    for a in &mut area {
+        *a = a.min(cell_area);
+    }
+    area
+}
+
+/// Area of the polygon `poly` inside the unit square `[x, x+1] × [y, y+1]` (Sutherland–Hodgman).
+fn clipped_area(poly: &[Vec2], x: f32, y: f32) -> f32 {
+    let mut p: Vec<Vec2> = poly.to_vec();
+    let edges: [(Vec2, f32); 4] = [
+        (Vec2::X, x),
+        (-Vec2::X, -(x + 1.0)),
+        (Vec2::Y, y),
+        (-Vec2::Y, -(y + 1.0)),
+    ];
+    for (n, d) in edges {
+        if p.is_empty() {
+            return 0.0;
+        }
+        let mut out = Vec::with_capacity(p.len() + 2);
+        for i in 0..p.len() {
+            let (a, b) = (p[i], p[(i + 1) % p.len()]);
+            let (da, db) = (n.dot(a) - d, n.dot(b) - d);
+            if da >= 0.0 {
+                out.push(a);
+            }
+            if (da >= 0.0) != (db >= 0.0) {
+                out.push(a + (b - a) * (da / (da - db)));
+            }
+        }
+        p = out;
+    }
+    let mut s = 0.0;
+    for i in 0..p.len() {
+        let (a, b) = (p[i], p[(i + 1) % p.len()]);
+        s += a.x * b.y - a.y * b.x;
+    }
+    0.5 * s.abs()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::planes::{detect_planes, PlaneParams};
+    use crate::sampling::Rng;
+
+    fn square(size: f32) -> Vec<[Vec3; 3]> {
+        let p = |x: f32, z: f32| Vec3::new(x, 0.0, z);
+        vec![
+            [p(0.0, 0.0), p(0.0, size), p(size, size)],
+            [p(0.0, 0.0), p(size, size), p(size, 0.0)],
+        ]
+    }
+
+    #[test]
+    fn clipped_area_of_a_triangle() {
+        let t = [Vec2::new(0.0, 0.0), Vec2::new(2.0, 0.0), Vec2::new(0.0, 2.0)];
+        assert!((clipped_area(&t, 0.0, 0.0) - 1.0).abs() < 1e-6);
+        assert!((clipped_area(&t, 1.0, 0.0) - 0.5).abs() < 1e-6);
+        assert_eq!(clipped_area(&t, 1.0, 1.0), 0.0);
+    }
+
+    #[test]
+    fn uniform_field_gives_its_irradiance_at_every_scale_and_edge() {
+        let tris = square(2.0);
+        let set = detect_planes(&tris, &PlaneParams::default());
+        assert_eq!(set.planes.len(), 1);
+        let mut rng = Rng::keyed(3, 1, 4);
+        let n = 200_000;
+        // 1 W/m² over 4 m²: 4 W in all.
+        let power = Rgb::splat(4.0 / n as f32);
+        let (mut photons, mut tri) = (Vec::new(), Vec::new());
+        for _ in 0..n {
+            let (x, z) = (rng.uniform() * 2.0, rng.uniform() * 2.0);
+            photons.push(Photon::new(Vec3::new(x, 0.0, z), power, Vec3::Y, Vec3::Y, PhotonKind::Indirect));
+            tri.push(if z > x { 0 } else { 1 });
+        }
+        let g = MultiscaleGrids::build(set, &tris, &photons, &tri, &MultiscaleParams::default());
+        let tex = &g.textures[0];
+        let total: f32 = g.fine[0][1].texels.iter().map(|t| t.area).sum();
+        assert!((total - 4.0).abs() < 1e-3, "covered area {total}");
+        for p in [Vec3::new(1.0, 0.0, 1.0), Vec3::new(0.001, 0.0, 0.001), Vec3::new(1.999, 0.0, 0.5)] {
+            for s in tex.scales(1, p).skip(3) {
+                let e = s.texel.flux[0] / s.texel.area;
+                let sigma = s.texel.var.sqrt() / s.texel.area;
+                // Within 4 σ of 1 W/m², corners included (the area counts only the surface).
+                assert!((e - 1.0).abs() < 4.0 * sigma + 1e-3, "{p} level {}: {e} ± {sigma}", s.level);
+            }
+        }
+    }
+}
