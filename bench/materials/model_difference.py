@@ -170,7 +170,7 @@ def angle_maps(desc):
     Y = -np.sqrt(np.clip(1 - r2, 0, 1))
     n = np.stack([X, Y, Z], -1)
     nl = np.where(r2 < 0.98, n @ L, np.nan)
-    nv = np.where(r2 < 0.98, -Y, np.nan)
+    nv = np.where(r2 < 0.98, -Y, np.nan)   # r < 0.99: leaves out the silhouette pixels
     return nl, nv
 
 
@@ -185,7 +185,9 @@ def binned_ratio(img, ref, x, edges):
     return out
 
 
-def render_cycles_variant(blend, out_exr, distribution=None, lambert=False, spp=64):
+def render_cycles_variant(blend, out_exr, distribution=None, lambert=False, spp=64, reuse=False):
+    if reuse and os.path.exists(out_exr):
+        return read_exr(out_exr)
     import bpy
     sys.path.insert(0, HERE)
     import render_refs
@@ -216,6 +218,7 @@ def main(argv):
     ap.add_argument("--blend-dir", default=os.path.join(HERE, "..", "..", "out", "materials", "blend"))
     ap.add_argument("--work", default=os.path.join(HERE, "..", "..", "out", "materials", "model_diff"))
     ap.add_argument("--no-cycles-variants", action="store_true")
+    ap.add_argument("--reuse", action="store_true", help="reuse the variant renders in --work if present")
     a = ap.parse_args(argv)
     os.makedirs(a.work, exist_ok=True)
     result = {"_about": __doc__.split("\n\n")[1].strip(),
@@ -226,24 +229,31 @@ def main(argv):
         ref = read_exr(os.path.join(a.refs, name + "_cam0.exr"))
         g = gltf_image(desc)
         from render_refs import write_exr_half
-        write_exr_half(os.path.join(a.work, name + ".gltf_model.exr"), g)
+        # the glTF-model image: what a renderer implementing Appendix B exactly should produce
+        write_exr_half(os.path.join(a.refs, name + "_cam0.gltf_model.exr"), g)
         nl, nv = angle_maps(desc)
+        on = np.isfinite(nv)  # pixel centre inside 0.99 r: the sphere without its silhouette pixels
         r = {"material_gltf": desc["materials"][0]["gltf"],
              "sun_lux": desc["lights"][0]["gltf"]["intensity"],
              "vs_cycles_reference (Principled, Multiscatter GGX)": compare(g, ref),
+             "vs_cycles_reference, sphere pixels only": compare(g, ref, on),
              "ratio_by_NdotL": binned_ratio(g, ref, nl, [0, 0.1, 0.2, 0.4, 0.6, 0.8, 1.01]),
              "ratio_by_NdotV": binned_ratio(g, ref, nv, [0, 0.2, 0.4, 0.6, 0.8, 1.01]),
              "silhouette_pixels_gltf_vs_cycles": [int(((g @ LUM) > 0).sum()), int(((ref @ LUM) > 0).sum())]}
         if not a.no_cycles_variants:
             blend = os.path.join(a.blend_dir, name + ".blend")
-            single = render_cycles_variant(blend, os.path.join(a.work, name + ".cycles_ggx.exr"), distribution="GGX")
+            single = render_cycles_variant(blend, os.path.join(a.work, name + ".cycles_ggx.exr"), distribution="GGX",
+                                           reuse=a.reuse)
             r["vs_cycles_single_scatter_GGX (64 spp)"] = compare(g, single)
+            r["vs_cycles_single_scatter_GGX (64 spp), sphere pixels only"] = compare(g, single, on)
             r["cycles_multiscatter_over_single_scatter_mean"] = float((ref @ LUM).mean() / (single @ LUM).mean())
             if name == "mat_sphere_single":
-                lam = render_cycles_variant(blend, os.path.join(a.work, name + ".cycles_lambert.exr"), lambert=True)
+                lam = render_cycles_variant(blend, os.path.join(a.work, name + ".cycles_lambert.exr"), lambert=True,
+                                            reuse=a.reuse)
                 base = material_params(desc["materials"][0]["gltf"])[0]
                 gl = gltf_image(desc, base=base, lambert=True)
                 r["sanity_lambert_analytic_vs_cycles (64 spp)"] = compare(gl, lam)
+                r["sanity_lambert_analytic_vs_cycles (64 spp), sphere pixels only"] = compare(gl, lam, on)
         result[name] = r
         print(json.dumps({name: r}, indent=1), flush=True)
     with open(os.path.join(a.refs, "model_difference.json"), "w") as f:

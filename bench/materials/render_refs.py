@@ -36,9 +36,9 @@ LUM = np.array([0.2126, 0.7152, 0.0722])
 # total samples per scene (split over the passes); chosen from the measured time per sample so
 # that the whole set takes about 2 h of CPU (README: timings)
 DEFAULT_SPP = {
-    "mat_spheres": 1024,
+    "mat_spheres": 768,
     "mat_leaves": 3072,
-    "mat_punctual": 2048,
+    "mat_punctual": 1024,
     "mat_sphere_single": 256,
     "mat_sphere_single_metal": 256,
 }
@@ -90,6 +90,30 @@ def write_exr_half(path, rgb):
     chans = {c: rgb[..., i].astype(np.float16) for i, c in enumerate("RGB")}
     hdr = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     OpenEXR.File(hdr, chans).write(path)
+
+
+def write_preview(path, rgb):
+    """sRGB PNG preview (clipped at 1) of a linear image."""
+    import struct
+    import zlib
+    x = np.clip(rgb, 0, 1)
+    x = np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
+    q = np.round(x * 255).astype(np.uint8)
+    h, w, _ = q.shape
+    raw = b"".join(b"\x00" + q[i].tobytes() for i in range(h))
+
+    def chunk(tag, data):
+        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
+    with open(path, "wb") as f:
+        f.write(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+                + chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b""))
+
+
+def previews(out):
+    os.makedirs(os.path.join(out, "preview"), exist_ok=True)
+    for f in sorted(os.listdir(out)):
+        if f.endswith("_cam0.exr") or (f.endswith(".exr") and "_cam" in f and f.count(".") == 1):
+            write_preview(os.path.join(out, "preview", f[:-4] + ".png"), read_exr_rgb(os.path.join(out, f)))
 
 
 def setup_cycles(sc, spp, seed, threads=2):
@@ -173,7 +197,13 @@ def main(argv):
     ap.add_argument("--scale", type=float, default=None,
                     help="resolution scale for all scenes (0.5 = 320x240); default per scene")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--previews-only", action="store_true", help="only (re)write refs/preview/*.png")
+    ap.add_argument("--resume", action="store_true",
+                    help="reuse pass EXRs in --work rendered with the same spp, seed and size")
     a = ap.parse_args(argv)
+    if a.previews_only:
+        previews(a.out)
+        return
     spp = dict(DEFAULT_SPP)
     for kv in filter(None, a.spp.split(",")):
         k, v = kv.split("=")
@@ -212,15 +242,30 @@ def main(argv):
             secs = 0.0
             cpu = 0.0
             load0 = os.getloadavg()[0]
+            setup_cycles(sc, per, seed=1 + 1000 * ci, threads=a.threads)
             for i in range(n):
-                setup_cycles(sc, per, seed=1 + 1000 * ci + i, threads=a.threads)
+                seed = 1 + 1000 * ci + i
                 p = os.path.join(a.work, "%s_pass%02d.exr" % (key, i))
+                side = p[:-4] + ".json"
+                meta = {"spp": per, "seed": seed, "resolution": [w, h]}
+                if a.resume and os.path.exists(side):
+                    old = json.load(open(side))
+                    if all(old.get(k) == v for k, v in meta.items()) and os.path.exists(p):
+                        passes.append(read_exr_rgb(p))
+                        secs += old["seconds"]
+                        cpu += old["cpu_seconds"]
+                        print("%s pass %d/%d: reused %s" % (key, i + 1, n, p), flush=True)
+                        continue
+                setup_cycles(sc, per, seed=seed, threads=a.threads)
                 sc.render.filepath = p
                 t0, c0 = time.time(), time.process_time()
                 bpy.ops.render.render(write_still=True)
                 dt = time.time() - t0
+                dc = time.process_time() - c0
                 secs += dt
-                cpu += time.process_time() - c0
+                cpu += dc
+                with open(side, "w") as f:
+                    json.dump(meta | {"seconds": dt, "cpu_seconds": dc}, f)
                 passes.append(read_exr_rgb(p))
                 print("%s pass %d/%d: %d spp, %.1f s" % (key, i + 1, n, per, dt), flush=True)
             stack = np.stack(passes)                       # (N, H, W, 3)
@@ -265,6 +310,7 @@ def main(argv):
             print(json.dumps({key: {k: refs[key][k] for k in ("spp", "render_seconds_2_cores", "render_cpu_seconds", "mean_luminance")} | {"rel_rmse_est": refs[key]["noise"]["rel_rmse_est"]}}), flush=True)
             with open(jpath, "w") as f:
                 json.dump(refs, f, indent=1)
+    previews(a.out)
 
 
 if __name__ == "__main__":
