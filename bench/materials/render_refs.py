@@ -3,10 +3,10 @@
 
     nice -n 19 ~/.cache/photongrid/venv-bpy-5.0.1/bin/python bench/materials/render_refs.py \
         [--blend-dir out/materials/blend] [--out bench/materials/refs] [--only mat_spheres,...]
-        [--passes 8] [--spp mat_spheres=1024,...] [--scale 1.0] [--work out/materials/passes]
+        [--passes N] [--spp mat_spheres=768,...] [--scale 1.0] [--work out/materials/passes] [--resume]
 
-For every scene (one camera each) it renders --passes independent Cycles passes with different
-seeds (spp / passes samples each), and writes
+For every scene (one camera each) it renders N independent Cycles passes with seeds 1..N
+(spp / N samples each; defaults per scene below) and writes
 
   refs/<scene>_cam0.exr           mean of the passes (the reference), half float, ZIP
   refs/<scene>_cam0.stderr.exr    per-pixel standard error of that mean (std of passes / sqrt(N))
@@ -277,6 +277,7 @@ def main(argv):
             lum_passes = stack @ LUM
             se_lum = lum_passes.std(axis=0, ddof=1) / math.sqrt(n)
             lum = mean @ LUM
+            settings = settings_record(sc) | {"samples_per_pass": per}  # before the mask render
             mask = render_mask(sc, os.path.join(a.work, key + "_mask.exr"))
             write_exr_half(os.path.join(a.out, key + ".exr"), mean)
             write_exr_half(os.path.join(a.out, key + ".stderr.exr"), se)
@@ -308,7 +309,7 @@ def main(argv):
                 "specmask": key + ".specmask.exr",
                 "cycles_valid": valid,
                 "cycles_valid_note": note,
-                "cycles_settings": settings_record(sc) | {"samples_per_pass": per},
+                "cycles_settings": settings,
             }
             print(json.dumps({key: {k: refs[key][k] for k in ("spp", "render_seconds_2_cores", "render_cpu_seconds", "mean_luminance")} | {"rel_rmse_est": refs[key]["noise"]["rel_rmse_est"]}}), flush=True)
             with open(jpath, "w") as f:
