@@ -464,7 +464,7 @@ impl GridState {
     }
 
     /// Add a pass's shown photons to the grids the estimate needs (building them at pass 0).
-    fn add(&mut self, scene: &Scene, settings: &Settings, photons: &[Photon], triangles: &[u32]) {
+    fn add(&mut self, scene: &Scene, accel: &Accel, settings: &Settings, photons: &[Photon], triangles: &[u32]) {
         let needs = settings.method.needs();
         if needs.grids {
             let params = GridParams::from(settings);
@@ -490,7 +490,8 @@ impl GridState {
                         photons_per_cell: settings.cell_photons,
                         ..MultiscaleParams::default()
                     };
-                    let g = MultiscaleGrids::build(set, &tris, photons, triangles, &params);
+                    let buried = |p: glam::Vec3, n: glam::Vec3| inside_solid(scene, accel, p, n);
+                    let g = MultiscaleGrids::build(set, &tris, photons, triangles, &params, &buried);
                     for line in g.describe() {
                         tracing::info!("{line}");
                     }
@@ -504,6 +505,27 @@ impl GridState {
         self.paper.as_ref().map(Grids::memory_bytes).unwrap_or(0)
             + self.multiscale.as_ref().map(MultiscaleGrids::memory_bytes).unwrap_or(0)
     }
+}
+
+/// Whether a point of a surface with front normal `n` lies inside a closed solid resting on
+/// its front (under a box on the floor): the first surface met along the normal and along
+/// both in-plane axes is hit from its back. (Only the front: every face of a solid has the
+/// solid itself behind it.) Directions lean slightly off the axes (a ray through the shared
+/// edge of two triangles, where cell centres often lie, can slip between them) and towards
+/// the front (so they do not cross the surface).
+fn inside_solid(scene: &Scene, accel: &Accel, p: glam::Vec3, n: glam::Vec3) -> bool {
+    let eps = 1e-4 * (1.0 + p.abs().max_element());
+    let (u, v) = crate::sampling::basis(n);
+    [n].iter().any(|&side| {
+        let o = p + side * eps;
+        let exits = |d: glam::Vec3| {
+            let d = (d + 0.013 * side + 0.007 * u + 0.003 * v).normalize();
+            accel
+                .intersect(o, d, f32::INFINITY)
+                .is_some_and(|hit| d.dot(scene.triangles[hit.triangle as usize].cross()) > 0.0)
+        };
+        [side, u, -u, v, -v].iter().all(|&d| exits(d))
+    })
 }
 
 /// The photons of one pass, reduced to the kinds the camera pass shows and indexed.
@@ -574,7 +596,7 @@ fn trace_pass(
     if needs.grids || needs.multiscale {
         let phase = progress.phase("grids", 0);
         let _s = tracing::info_span!("grids", pass).entered();
-        grids.add(scene, settings, &photons, &photon_triangles);
+        grids.add(scene, accel, settings, &photons, &photon_triangles);
         times.grids += phase.finish();
     }
     drop(photon_triangles);

@@ -56,7 +56,7 @@ pub fn gather(grids: &MultiscaleGrids, q: &Query, gamma: f32) -> Option<Gather> 
     let (mut area, mut count) = (0.0f32, 0.0f32);
     for layer in 0..LAYERS {
         let floor = grids.mean_power[layer] * grids.mean_power[layer];
-        if let Some((irradiance, a, n)) = choose_scale(tex.scales(layer, q.position), gamma, floor, passes) {
+        if let Some((irradiance, a, n)) = choose_scale(tex[layer].scales(q.position), gamma, floor, passes) {
             e += irradiance;
             // The AOVs show the global layer's kernel (the last layer).
             area = a;
