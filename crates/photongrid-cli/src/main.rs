@@ -493,6 +493,7 @@ fn render(a: RenderArgs) -> Result<()> {
         &a.scene,
         &LoadOptions {
             allow_external_uris: a.allow_external_uris,
+            ..Default::default()
         },
     )?;
     times.load = phase.finish();

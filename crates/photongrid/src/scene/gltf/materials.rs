@@ -1,30 +1,53 @@
 //! glTF materials → [`Material`]: Lambert, mirror or glass, with emission and the base-colour
 //! texture; everything else is approximated or ignored, and said so in the report.
 
-use super::{LoadError, Loader};
+use super::budget::{human, Budget, BYTES_PER_TEXEL};
+use super::uris::Source;
+use super::{Inputs, LoadError, Loader};
 use crate::scene::material::srgb_to_linear;
 use crate::scene::{units, Material, Surface, Texture};
 use crate::Rgb;
+use image::{DynamicImage, ImageDecoder, ImageFormat};
 use std::collections::HashMap;
+use std::path::PathBuf;
 
-/// Textures decoded so far, by image index (an image used by several materials is decoded once).
+/// What identifies the bytes of an image: the file it is read from, else its index.
+#[derive(Clone, Debug, Hash, PartialEq, Eq)]
+enum ImageKey {
+    File(PathBuf),
+    Image(usize),
+}
+
+/// Textures decoded so far: one per distinct image source, so an image used by several
+/// materials (or several images naming one file) is decoded once.
 #[derive(Default)]
 pub(super) struct Textures {
     pub(super) list: Vec<Texture>,
-    of_image: HashMap<usize, u32>,
+    by_key: HashMap<ImageKey, u32>,
+}
+
+fn image_key(sources: &super::uris::Sources, i: usize) -> ImageKey {
+    match &sources.images[i] {
+        Source::File { path, .. } => ImageKey::File(path.clone()),
+        _ => ImageKey::Image(i),
+    }
+}
+
+/// True if the material becomes a Lambert surface with a base-colour texture (the only
+/// texture that is decoded).
+fn decodes_base_texture(m: &gltf::Material) -> bool {
+    let transmission = m.transmission().map(|t| t.transmission_factor()).unwrap_or(0.0);
+    let metallic = m.pbr_metallic_roughness().metallic_factor();
+    !(transmission > 0.0) && !(metallic >= 0.5) && m.pbr_metallic_roughness().base_color_texture().is_some()
 }
 
 impl Loader<'_> {
     /// All materials of the file, in order, and the textures they use.
-    pub(super) fn materials(
-        &mut self,
-        doc: &gltf::Document,
-        buffers: &[gltf::buffer::Data],
-    ) -> Result<(Vec<Material>, Vec<Texture>), LoadError> {
+    pub(super) fn materials(&mut self, inputs: &Inputs) -> Result<(Vec<Material>, Vec<Texture>), LoadError> {
         let mut textures = Textures::default();
         let mut materials = Vec::new();
-        for m in doc.materials() {
-            let mat = self.material(&m, buffers, &mut textures)?;
+        for m in inputs.doc.materials() {
+            let mat = self.material(&m, inputs, &mut textures)?;
             self.report.materials.push(format!(
                 "materials[{}] '{}': {}",
                 m.index().unwrap_or(0),
@@ -43,7 +66,7 @@ impl Loader<'_> {
     fn material(
         &mut self,
         m: &gltf::Material,
-        buffers: &[gltf::buffer::Data],
+        inputs: &Inputs,
         textures: &mut Textures,
     ) -> Result<Material, LoadError> {
         let index = m.index().unwrap_or(0);
@@ -68,7 +91,7 @@ impl Loader<'_> {
         if m.alpha_mode() != gltf::material::AlphaMode::Opaque {
             self.approximated(&element, &name, "alpha mode ignored: rendered opaque");
         }
-        let surface = self.surface(m, base_rgb, &element, &name, buffers, textures)?;
+        let surface = self.surface(m, base_rgb, &element, &name, inputs, textures)?;
         if let Surface::Lambert { albedo, .. } = &surface {
             if albedo.max_element() > 1.0 {
                 self.approximated(&element, &name, "albedo > 1 reflects more than it receives");
@@ -89,7 +112,7 @@ impl Loader<'_> {
         base_rgb: Rgb,
         element: &str,
         name: &str,
-        buffers: &[gltf::buffer::Data],
+        inputs: &Inputs,
         textures: &mut Textures,
     ) -> Result<Surface, LoadError> {
         let pbr = m.pbr_metallic_roughness();
@@ -128,7 +151,7 @@ impl Loader<'_> {
             self.approximated(element, name, "default specular layer ignored (pure Lambert)");
         }
         let texture = match pbr.base_color_texture() {
-            Some(info) => Some(self.base_color_texture(&info, element, name, buffers, textures)?),
+            Some(info) => Some(self.base_color_texture(&info, element, name, inputs, textures)?),
             None => None,
         };
         Ok(Surface::Lambert {
@@ -179,7 +202,7 @@ impl Loader<'_> {
         info: &gltf::texture::Info,
         element: &str,
         name: &str,
-        buffers: &[gltf::buffer::Data],
+        inputs: &Inputs,
         textures: &mut Textures,
     ) -> Result<u32, LoadError> {
         if info.tex_coord() != 0 {
@@ -192,24 +215,119 @@ impl Loader<'_> {
         if info.texture_transform().is_some() {
             self.approximated(element, name, "KHR_texture_transform ignored");
         }
-        let image = info.texture().source();
-        let key = image.index();
-        if let Some(&t) = textures.of_image.get(&key) {
+        let texture = info.texture();
+        let i = texture.source().index();
+        let key = image_key(inputs.sources, i);
+        if let Some(&t) = textures.by_key.get(&key) {
             return Ok(t);
         }
-        let data = gltf::image::Data::from_source(image.source(), Some(&self.base), buffers)
-            .map_err(|e| self.invalid(format!("images[{key}]"), format!("cannot decode: {e}")))?;
-        let tex = texture_from_image(&data).ok_or_else(|| {
-            self.invalid(
-                format!("images[{key}]"),
-                format!("unsupported pixel format {:?}", data.format),
-            )
-        })?;
+        let tex = self.decode_image(inputs, i)?;
         textures.list.push(tex);
         let t = (textures.list.len() - 1) as u32;
-        textures.of_image.insert(key, t);
+        textures.by_key.insert(key, t);
         Ok(t)
     }
+
+    /// Read the header of every image a material will decode and add the decoded textures to
+    /// the budget, before any is decoded.
+    pub(super) fn estimate_textures(&self, inputs: &Inputs, budget: &mut Budget) -> Result<(), LoadError> {
+        let mut keys = std::collections::HashSet::new();
+        let mut seen = Vec::new();
+        for m in inputs.doc.materials().filter(decodes_base_texture) {
+            let Some(info) = m.pbr_metallic_roughness().base_color_texture() else {
+                continue;
+            };
+            let i = info.texture().source().index();
+            if keys.insert(image_key(inputs.sources, i)) {
+                let bytes = self.image_bytes(inputs.root(), inputs.sources, inputs.buffers, i, budget.left())?;
+                let format = self.image_format(inputs, i, &bytes)?;
+                let (w, h, pixel) = probe(&bytes, format).map_err(|e| self.cannot_decode(i, e))?;
+                seen.push((i, w, h, pixel, bytes.len() as u64));
+            }
+        }
+        let mut texels = 0u64;
+        let mut decoding = 0u64;
+        for &(i, w, h, pixel, encoded) in &seen {
+            let n = w as u64 * h as u64;
+            texels = texels.saturating_add(n.saturating_mul(BYTES_PER_TEXEL));
+            decoding = decoding.max(n.saturating_mul(pixel).saturating_add(encoded));
+            if n.saturating_mul(BYTES_PER_TEXEL) > budget.limit() {
+                let what = format!(
+                    "is {w}×{h}: its {} decoded alone exceed the memory budget of {}; use a smaller texture",
+                    human(n * BYTES_PER_TEXEL),
+                    human(budget.limit())
+                );
+                return Err(self.invalid(format!("images[{i}]"), what));
+            }
+        }
+        budget.add(format!("{} decoded textures", seen.len()), texels);
+        budget.add("decoding the largest texture", decoding);
+        budget.check(self.path)
+    }
+
+    fn cannot_decode(&self, i: usize, e: image::ImageError) -> LoadError {
+        let what = match e {
+            image::ImageError::Limits(_) => {
+                "cannot decode: the decoded image would exceed the decoder's limit of 512 MiB; use a smaller texture"
+                    .into()
+            }
+            e => format!("cannot decode: {e}"),
+        };
+        self.invalid(format!("images[{i}]"), what)
+    }
+
+    /// PNG or JPEG: from the data: URI's media type, the mimeType, the file name's extension,
+    /// or the first bytes.
+    fn image_format(&self, inputs: &Inputs, i: usize, bytes: &[u8]) -> Result<ImageFormat, LoadError> {
+        let image = &inputs.root().images[i];
+        let declared = match &inputs.sources.images[i] {
+            Source::Data { media_type, .. } => Some(*media_type),
+            _ => image.mime_type.as_ref().map(|m| m.0.as_str()),
+        };
+        let by_extension = || match image.uri.as_deref().and_then(|u| u.rsplit('.').next()) {
+            Some("png") => Some(ImageFormat::Png),
+            Some("jpg") | Some("jpeg") => Some(ImageFormat::Jpeg),
+            _ => None,
+        };
+        let format = match declared {
+            Some("image/png") => Some(ImageFormat::Png),
+            Some("image/jpeg") => Some(ImageFormat::Jpeg),
+            _ => by_extension(),
+        };
+        let sniffed = || {
+            image::guess_format(bytes)
+                .ok()
+                .filter(|f| matches!(f, ImageFormat::Png | ImageFormat::Jpeg))
+        };
+        format.or_else(sniffed).ok_or_else(|| {
+            self.invalid(
+                format!("images[{i}]"),
+                "unsupported image encoding: only PNG and JPEG images are read",
+            )
+        })
+    }
+
+    /// Decode image `i` into a linear-RGB texture.
+    fn decode_image(&self, inputs: &Inputs, i: usize) -> Result<Texture, LoadError> {
+        let bytes = self.image_bytes(inputs.root(), inputs.sources, inputs.buffers, i, u64::MAX)?;
+        let format = self.image_format(inputs, i, &bytes)?;
+        let image = image::load_from_memory_with_format(&bytes, format).map_err(|e| self.cannot_decode(i, e))?;
+        drop(bytes);
+        texture_from_image(&image).ok_or_else(|| {
+            let what = format!(
+                "unsupported pixel format {:?} (8-bit grey, grey+alpha, RGB or RGBA are read)",
+                image.color()
+            );
+            self.invalid(format!("images[{i}]"), what)
+        })
+    }
+}
+
+/// Width, height and bytes per pixel of an encoded image, from its header.
+fn probe(bytes: &[u8], format: ImageFormat) -> image::ImageResult<(u32, u32, u64)> {
+    let decoder = image::ImageReader::with_format(std::io::Cursor::new(bytes), format).into_decoder()?;
+    let (w, h) = decoder.dimensions();
+    Ok((w, h, decoder.color_type().bytes_per_pixel() as u64))
 }
 
 fn describe_material(m: &Material) -> String {
@@ -241,21 +359,20 @@ fn describe_material(m: &Material) -> String {
     }
 }
 
-fn texture_from_image(d: &gltf::image::Data) -> Option<Texture> {
-    use gltf::image::Format;
-    let channels = match d.format {
-        Format::R8 => 1,
-        Format::R8G8 => 2,
-        Format::R8G8B8 => 3,
-        Format::R8G8B8A8 => 4,
+fn texture_from_image(image: &DynamicImage) -> Option<Texture> {
+    let channels = match image {
+        DynamicImage::ImageLuma8(_) => 1,
+        DynamicImage::ImageLumaA8(_) => 2,
+        DynamicImage::ImageRgb8(_) => 3,
+        DynamicImage::ImageRgba8(_) => 4,
         _ => return None,
     };
-    let (w, h) = (d.width as usize, d.height as usize);
-    if w == 0 || h == 0 || d.pixels.len() < w * h * channels {
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    let pixels = image.as_bytes();
+    if w == 0 || h == 0 || pixels.len() < w * h * channels {
         return None;
     }
-    let texels = d
-        .pixels
+    let texels = pixels
         .chunks_exact(channels)
         .take(w * h)
         .map(|c| match channels {

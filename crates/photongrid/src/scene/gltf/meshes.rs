@@ -2,7 +2,7 @@
 //! [`Triangle`]s; cameras and punctual lights are collected on the way.
 
 use super::lights::{light_of, PunctualKind};
-use super::{LoadError, Loader};
+use super::{Inputs, LoadError, Loader};
 use crate::scene::{Camera, Triangle};
 use glam::{Mat3, Mat4, Vec2, Vec3};
 use gltf::mesh::Mode;
@@ -26,19 +26,21 @@ struct Vertices {
 }
 
 impl Loader<'_> {
-    /// Walk the default scene's node tree (iteratively, with a depth limit against cyclic files).
+    /// Walk the default scene's node tree (validated: acyclic, bounded depth and expansion;
+    /// `triangles` after instancing, within the budget).
     pub(super) fn nodes(
         &mut self,
-        doc: &gltf::Document,
-        buffers: &[gltf::buffer::Data],
+        inputs: &Inputs,
         default_material: u32,
+        triangles: usize,
     ) -> Result<NodeContent, LoadError> {
+        let doc = inputs.doc;
         let scene = doc
             .default_scene()
             .or_else(|| doc.scenes().next())
             .ok_or_else(|| self.invalid("scenes", "the file has no scene"))?;
         let mut out = NodeContent {
-            triangles: Vec::new(),
+            triangles: Vec::with_capacity(triangles),
             cameras: Vec::new(),
             punctual: Vec::new(),
         };
@@ -58,7 +60,7 @@ impl Loader<'_> {
                 return Err(self.invalid(format!("nodes[{}]", node.index()), "transform is not finite"));
             }
             if let Some(mesh) = node.mesh() {
-                self.mesh(&mesh, world, buffers, default_material, &mut out.triangles)?;
+                self.mesh(&mesh, world, inputs.buffers, default_material, &mut out.triangles)?;
             }
             if let Some(cam) = node.camera() {
                 out.cameras.push(self.camera(&node, &cam, world)?);
@@ -78,7 +80,7 @@ impl Loader<'_> {
         &mut self,
         mesh: &gltf::Mesh,
         world: Mat4,
-        buffers: &[gltf::buffer::Data],
+        buffers: &[Vec<u8>],
         default_material: u32,
         out: &mut Vec<Triangle>,
     ) -> Result<(), LoadError> {
@@ -91,14 +93,6 @@ impl Loader<'_> {
                     .push(format!("{element}: mode {mode:?} is not triangles"));
                 continue;
             }
-            for (sem, acc) in prim.attributes() {
-                let what = format!("{element}.attributes.{sem:?} (accessors[{}])", acc.index());
-                self.check_accessor(&acc, buffers, &what)?;
-            }
-            if let Some(acc) = prim.indices() {
-                let what = format!("{element}.indices (accessors[{}])", acc.index());
-                self.check_accessor(&acc, buffers, &what)?;
-            }
             let vertices = self.read_vertices(&prim, buffers, &element)?;
             let tris = self.triangulate(mode, &vertices.indices, &element);
             let material = prim.material().index().map(|i| i as u32).unwrap_or(default_material);
@@ -108,13 +102,8 @@ impl Loader<'_> {
     }
 
     /// Read POSITION, NORMAL, TEXCOORD_0 and the indices of a primitive.
-    fn read_vertices(
-        &self,
-        prim: &gltf::Primitive,
-        buffers: &[gltf::buffer::Data],
-        element: &str,
-    ) -> Result<Vertices, LoadError> {
-        let reader = prim.reader(|b| buffers.get(b.index()).map(|d| d.0.as_slice()));
+    fn read_vertices(&self, prim: &gltf::Primitive, buffers: &[Vec<u8>], element: &str) -> Result<Vertices, LoadError> {
+        let reader = prim.reader(|b| buffers.get(b.index()).map(|d| d.as_slice()));
         let positions: Vec<Vec3> = reader
             .read_positions()
             .ok_or_else(|| {
@@ -240,52 +229,5 @@ impl Loader<'_> {
                 "{element}: {degenerate} degenerate (zero-area) triangles skipped"
             ));
         }
-    }
-
-    /// An accessor's bytes must lie inside its buffer view and buffer.
-    fn check_accessor(
-        &self,
-        acc: &gltf::Accessor,
-        buffers: &[gltf::buffer::Data],
-        element: &str,
-    ) -> Result<(), LoadError> {
-        let Some(view) = acc.view() else {
-            if acc.sparse().is_none() {
-                return Err(self.invalid(
-                    element,
-                    "accessor has no bufferView (zero-filled accessors are not supported)",
-                ));
-            }
-            return Ok(());
-        };
-        let buffer_len = buffers.get(view.buffer().index()).map(|b| b.len()).unwrap_or(0);
-        if view.offset() + view.length() > buffer_len {
-            return Err(self.invalid(
-                element,
-                format!(
-                    "bufferViews[{}] spans bytes {}..{} but buffer {} has {buffer_len}",
-                    view.index(),
-                    view.offset(),
-                    view.offset() + view.length(),
-                    view.buffer().index()
-                ),
-            ));
-        }
-        let elem = acc.size();
-        let stride = view.stride().unwrap_or(elem);
-        if acc.count() > 0 {
-            let need = acc.offset() + stride * (acc.count() - 1) + elem;
-            if need > view.length() {
-                return Err(self.invalid(
-                    element,
-                    format!(
-                        "needs {need} bytes but bufferViews[{}] has {}",
-                        view.index(),
-                        view.length()
-                    ),
-                ));
-            }
-        }
-        Ok(())
     }
 }
