@@ -1,9 +1,10 @@
 //! glTF cameras → [`Camera`]: the projection from the camera object, the placement from the
 //! node that carries it.
 
+use super::meshes::MAX_COORDINATE;
 use super::{LoadError, Loader};
 use crate::scene::{camera, Camera, Projection};
-use glam::Mat4;
+use glam::{Mat4, Vec3};
 
 impl Loader<'_> {
     pub(super) fn camera(&mut self, node: &gltf::Node, cam: &gltf::Camera, world: Mat4) -> Result<Camera, LoadError> {
@@ -32,11 +33,45 @@ impl Loader<'_> {
             .or(cam.name())
             .map(str::to_string)
             .unwrap_or_else(|| element.clone());
+        let to_world = camera::rigid_part(world);
+        self.check_placement(&element, &name, node.index(), world, to_world)?;
         Ok(Camera {
             name,
             index: cam.index(),
-            to_world: camera::rigid_part(world),
+            to_world,
             projection,
         })
+    }
+
+    /// The camera's node must give it an orientation (no zero scale, no singular matrix) and a
+    /// position in range: otherwise every ray would be degenerate and the image black.
+    fn check_placement(
+        &self,
+        element: &str,
+        name: &str,
+        node: usize,
+        world: Mat4,
+        to_world: Mat4,
+    ) -> Result<(), LoadError> {
+        let element = format!("{element} '{name}' (nodes[{node}])");
+        let axes = [to_world.x_axis, to_world.y_axis, to_world.z_axis].map(|a| a.truncate());
+        let oriented = to_world.is_finite() && axes.iter().all(|a| (a.length() - 1.0).abs() < 1e-3);
+        if !oriented {
+            let (x, y) = (world.x_axis.truncate(), world.y_axis.truncate());
+            return Err(self.invalid(
+                element,
+                format!(
+                    "the node's transform has zero scale or is singular (camera X axis {x}, Y axis {y}), so the camera has no orientation; give the camera object a non-zero scale"
+                ),
+            ));
+        }
+        let position: Vec3 = to_world.w_axis.truncate();
+        if !(position.abs().max_element() < MAX_COORDINATE) {
+            return Err(self.invalid(
+                element,
+                format!("lies at {position}: coordinates must stay below {MAX_COORDINATE:e} in magnitude"),
+            ));
+        }
+        Ok(())
     }
 }

@@ -1,11 +1,16 @@
 //! Lights: KHR_lights_punctual (point, spot, sun) in photometric units → radiometric
 //! [`Light`]s, and the emissive triangles gathered into one area light.
 
+use super::meshes::MAX_COORDINATE;
 use super::{LoadError, Loader};
 use crate::scene::light::EmitterTriangle;
 use crate::scene::{units, Bounds, Light, Material, Triangle};
 use crate::Rgb;
 use glam::{Mat4, Vec3};
+
+/// Most power a light (or all lights together) may emit, W: far above any real scene, far
+/// enough below f32's 3.4e38 that fluxes, their sums and pixel values cannot overflow.
+pub(super) const MAX_POWER: f32 = 1e24;
 
 pub(super) enum PunctualType {
     Point,
@@ -54,13 +59,24 @@ impl Loader<'_> {
     ) -> Result<Vec<Light>, LoadError> {
         let mut lights = Vec::new();
         for (node, name, kind, world) in punctual {
-            let l = self.light(node, name, kind, world, bounds)?;
+            let element = format!("nodes[{node}] (KHR_lights_punctual.lights[{}])", kind.index);
+            let l = self.light(&element, name, kind, world, bounds)?;
+            self.check_power(&element, &l)?;
             self.report.lights.push(l.describe());
             lights.push(l);
         }
         if let Some(l) = Light::emissive(emitters(triangles, materials)) {
+            self.check_power("emissive materials", &l)?;
             self.report.lights.push(l.describe());
             lights.push(l);
+        }
+        let total = lights.iter().map(|l| l.power()).sum::<Rgb>();
+        if !(total.max_element() <= MAX_POWER) {
+            let what = format!(
+                "together emit {:.3e} W, more than {MAX_POWER:e} W; lower their intensities",
+                total.max_element()
+            );
+            return Err(self.invalid("lights", what));
         }
         if lights.iter().all(|l| l.power().max_element() <= 0.0) {
             return Err(LoadError::NoLights {
@@ -70,15 +86,30 @@ impl Loader<'_> {
         Ok(lights)
     }
 
+    /// A light's power must be finite and below [`MAX_POWER`] (photon fluxes, pixel sums and
+    /// the emitters' distribution are 32-bit).
+    fn check_power(&self, element: &str, light: &Light) -> Result<(), LoadError> {
+        let power = light.power();
+        if power.max_element() <= MAX_POWER && power.is_finite() {
+            return Ok(());
+        }
+        Err(self.invalid(
+            element,
+            format!(
+                "emits {:.3e} W, more than the {MAX_POWER:e} W the renderer's 32-bit sums can carry; lower the light's intensity or emission strength (or the scene's size, for a sun)",
+                power.max_element()
+            ),
+        ))
+    }
+
     fn light(
         &mut self,
-        node: usize,
+        element: &str,
         name: Option<String>,
         kind: PunctualKind,
         world: Mat4,
         bounds: &Bounds,
     ) -> Result<Light, LoadError> {
-        let element = format!("nodes[{node}] (KHR_lights_punctual.lights[{}])", kind.index);
         let name = name.unwrap_or_else(|| format!("light {}", kind.index));
         let color = Rgb::from(kind.color);
         if !(kind.intensity.is_finite() && kind.intensity >= 0.0 && color.is_finite() && color.min_element() >= 0.0) {
@@ -90,6 +121,10 @@ impl Loader<'_> {
                 .push(format!("{element}: range ignored (physical inverse-square falloff)"));
         }
         let position = world.transform_point3(Vec3::ZERO);
+        if !(position.abs().max_element() < MAX_COORDINATE) {
+            let what = format!("lies at {position}: coordinates must stay below {MAX_COORDINATE:e} in magnitude");
+            return Err(self.invalid(element, what));
+        }
         let direction = world.transform_vector3(Vec3::NEG_Z).normalize_or_zero();
         Ok(match kind.kind {
             PunctualType::Point => Light::Point {

@@ -11,6 +11,10 @@ use image::{DynamicImage, ImageDecoder, ImageFormat};
 use std::collections::HashMap;
 use std::path::PathBuf;
 
+/// Emitted radiance above which a material is refused, W/(m²·sr): 10⁷ times the sun's disc;
+/// beyond it, sums of radiance and power in 32 bits come near overflow (f32 max 3.4e38).
+pub(super) const MAX_RADIANCE: f32 = 1e15;
+
 /// What identifies the bytes of an image: the file it is read from, else its index.
 #[derive(Clone, Debug, Hash, PartialEq, Eq)]
 enum ImageKey {
@@ -82,6 +86,16 @@ impl Loader<'_> {
         if !emission.is_finite() || emission.min_element() < 0.0 {
             return Err(self.invalid(&element, "emissive factor × strength must be finite and non-negative"));
         }
+        if emission.max_element() > MAX_RADIANCE {
+            return Err(self.invalid(
+                &element,
+                format!(
+                    "emissive factor × strength is {:e} W/(m²·sr), more than the {MAX_RADIANCE:e} the renderer's 32-bit sums can carry; lower the emission strength",
+                    emission.max_element()
+                ),
+            ));
+        }
+        self.report_unused_textures(m, &element, &name);
         if m.emissive_texture().is_some() {
             self.approximated(&element, &name, "emissive texture ignored (emissiveFactor used)");
         }
@@ -216,6 +230,11 @@ impl Loader<'_> {
             self.approximated(element, name, "KHR_texture_transform ignored");
         }
         let texture = info.texture();
+        let wrap = (texture.sampler().wrap_s(), texture.sampler().wrap_t());
+        if wrap != (gltf::texture::WrappingMode::Repeat, gltf::texture::WrappingMode::Repeat) {
+            let what = format!("texture wrap mode {wrap:?} rendered as Repeat");
+            self.approximated(element, name, what);
+        }
         let i = texture.source().index();
         let key = image_key(inputs.sources, i);
         if let Some(&t) = textures.by_key.get(&key) {
@@ -226,6 +245,18 @@ impl Loader<'_> {
         let t = (textures.list.len() - 1) as u32;
         textures.by_key.insert(key, t);
         Ok(t)
+    }
+
+    /// Materials' textures that are not rendered, for the report.
+    fn report_unused_textures(&mut self, m: &gltf::Material, element: &str, name: &str) {
+        if m.normal_texture().is_some() {
+            let what = format!("{element} '{name}': normal texture ignored (the mesh's normals are used)");
+            self.report.ignored.push(what);
+        }
+        if m.occlusion_texture().is_some() {
+            let what = format!("{element} '{name}': occlusion texture ignored (light transport gives occlusion)");
+            self.report.ignored.push(what);
+        }
     }
 
     /// Read the header of every image a material will decode and add the decoded textures to

@@ -7,6 +7,10 @@ use crate::scene::{Camera, Triangle};
 use glam::{Mat3, Mat4, Vec2, Vec3};
 use gltf::mesh::Mode;
 
+/// Largest coordinate magnitude accepted after the node transforms, in metres: the BVH builder
+/// fails beyond about 1e19, and the grids need headroom above the scene's size.
+pub(super) const MAX_COORDINATE: f32 = 1e18;
+
 /// What the walk over the node hierarchy found.
 pub(super) struct NodeContent {
     /// World-space triangles.
@@ -15,6 +19,23 @@ pub(super) struct NodeContent {
     pub(super) cameras: Vec<Camera>,
     /// Punctual lights: node index, node name, light, world transform.
     pub(super) punctual: Vec<(usize, Option<String>, PunctualKind, Mat4)>,
+}
+
+/// One placement of a mesh: the node that carries it and the node's world transform.
+struct Instance<'n, 'a> {
+    node: &'n gltf::Node<'a>,
+    world: Mat4,
+    default_material: u32,
+}
+
+impl Instance<'_, '_> {
+    /// `nodes[3] 'Floor'`, for messages.
+    fn describe(&self) -> String {
+        match self.node.name() {
+            Some(name) => format!("nodes[{}] '{name}'", self.node.index()),
+            None => format!("nodes[{}]", self.node.index()),
+        }
+    }
 }
 
 /// One primitive's vertex data as read from its accessors.
@@ -26,8 +47,7 @@ struct Vertices {
 }
 
 impl Loader<'_> {
-    /// Walk the default scene's node tree (validated: acyclic, bounded depth and expansion;
-    /// `triangles` after instancing, within the budget).
+    /// Walk the default scene's node tree (validated: acyclic, bounded depth and expansion).
     pub(super) fn nodes(
         &mut self,
         inputs: &Inputs,
@@ -60,7 +80,12 @@ impl Loader<'_> {
                 return Err(self.invalid(format!("nodes[{}]", node.index()), "transform is not finite"));
             }
             if let Some(mesh) = node.mesh() {
-                self.mesh(&mesh, world, inputs.buffers, default_material, &mut out.triangles)?;
+                let instance = Instance {
+                    node: &node,
+                    world,
+                    default_material,
+                };
+                self.mesh(&mesh, &instance, inputs.buffers, &mut out.triangles)?;
             }
             if let Some(cam) = node.camera() {
                 out.cameras.push(self.camera(&node, &cam, world)?);
@@ -79,9 +104,8 @@ impl Loader<'_> {
     fn mesh(
         &mut self,
         mesh: &gltf::Mesh,
-        world: Mat4,
+        instance: &Instance,
         buffers: &[Vec<u8>],
-        default_material: u32,
         out: &mut Vec<Triangle>,
     ) -> Result<(), LoadError> {
         for prim in mesh.primitives() {
@@ -95,8 +119,9 @@ impl Loader<'_> {
             }
             let vertices = self.read_vertices(&prim, buffers, &element)?;
             let tris = self.triangulate(mode, &vertices.indices, &element);
-            let material = prim.material().index().map(|i| i as u32).unwrap_or(default_material);
-            self.place(&vertices, &tris, world, material, &element, out);
+            let material = prim.material().index().map(|i| i as u32);
+            let material = material.unwrap_or(instance.default_material);
+            self.place(&vertices, &tris, instance, material, &element, out)?;
         }
         Ok(())
     }
@@ -123,10 +148,17 @@ impl Loader<'_> {
             if ns.len() != n {
                 return Err(self.invalid(element, format!("NORMAL has {} entries, POSITION {n}", ns.len())));
             }
+            if let Some(i) = ns.iter().position(|v| !v.is_finite()) {
+                return Err(self.invalid(element, format!("NORMAL[{i}] is not finite ({})", ns[i])));
+            }
         }
         let uvs: Option<Vec<Vec2>> = reader
             .read_tex_coords(0)
             .map(|it| it.into_f32().map(Vec2::from).collect());
+        if let Some(i) = uvs.iter().flatten().position(|uv| !uv.is_finite()) {
+            let uv = uvs.as_ref().map(|u| u[i]).unwrap_or_default();
+            return Err(self.invalid(element, format!("TEXCOORD_0[{i}] is not finite ({uv})")));
+        }
         let indices: Vec<u32> = match reader.read_indices() {
             Some(it) => it.into_u32().collect(),
             None => (0..n as u32).collect(),
@@ -169,19 +201,30 @@ impl Loader<'_> {
         }
     }
 
-    /// Transform a primitive's triangles to world space and append them (skipping zero-area ones).
+    /// Transform a primitive's triangles to world space and append them (skipping zero-area
+    /// ones); coordinates and areas must stay in the range 32-bit floats and the BVH handle.
     fn place(
         &mut self,
         v: &Vertices,
         tris: &[[u32; 3]],
-        world: Mat4,
+        instance: &Instance,
         material: u32,
         element: &str,
         out: &mut Vec<Triangle>,
-    ) {
+    ) -> Result<(), LoadError> {
+        let world = instance.world;
         let normal_matrix = Mat3::from_mat4(world).inverse().transpose();
         let flip = Mat3::from_mat4(world).determinant() < 0.0;
         let world_p: Vec<Vec3> = v.positions.iter().map(|p| world.transform_point3(*p)).collect();
+        if let Some(i) = world_p.iter().position(|p| !(p.abs().max_element() < MAX_COORDINATE)) {
+            return Err(self.invalid(
+                format!("{} → {element}", instance.describe()),
+                format!(
+                    "POSITION[{i}] lies at {} after the node transforms: coordinates must stay below {MAX_COORDINATE:e} in magnitude; scale the scene down (or check the node's scale)",
+                    world_p[i]
+                ),
+            ));
+        }
         let world_n: Option<Vec<Vec3>> = v
             .normals
             .as_ref()
@@ -195,6 +238,15 @@ impl Loader<'_> {
             let p = t.map(|i| world_p[i as usize]);
             let cross = (p[1] - p[0]).cross(p[2] - p[0]);
             let len = cross.length();
+            if len.is_infinite() {
+                return Err(self.invalid(
+                    format!("{} → {element}", instance.describe()),
+                    format!(
+                        "a triangle at {} is too large: its area overflows 32-bit floats (edges beyond ~1e9 m); scale the scene down",
+                        p[0]
+                    ),
+                ));
+            }
             if !(len > 1e-14) {
                 self.report.degenerate_triangles += 1;
                 continue;
@@ -229,5 +281,6 @@ impl Loader<'_> {
                 "{element}: {degenerate} degenerate (zero-area) triangles skipped"
             ));
         }
+        Ok(())
     }
 }

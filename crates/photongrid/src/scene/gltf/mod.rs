@@ -307,16 +307,52 @@ impl<'a> Loader<'a> {
             bounds,
             report: self.report,
         };
+        if !(scene.surface_area().is_finite() && scene.bounds.diagonal().is_finite()) {
+            return Err(LoadError::Invalid {
+                path: scene.source,
+                element: "meshes".into(),
+                message: "the scene's total surface area or size overflows 32-bit floats; scale the scene down".into(),
+            });
+        }
         Ok(scene)
     }
 
-    /// Extensions the renderer does not use, for the report.
+    /// Extensions and features the renderer does not use, for the report.
     fn report_ignored(&mut self, doc: &gltf::Document) {
         for ext in doc.extensions_used() {
             if !SUPPORTED_EXTENSIONS.contains(&ext) {
                 self.report
                     .ignored
                     .push(format!("extension {ext}: not supported, ignored"));
+            }
+        }
+        let root = doc.as_json();
+        if !root.animations.is_empty() {
+            let what = format!(
+                "{} animations ignored (the scene is rendered as the file places it)",
+                root.animations.len()
+            );
+            self.report.ignored.push(what);
+        }
+        if !root.skins.is_empty() {
+            let what = format!(
+                "{} skins ignored (meshes are rendered in their bind pose)",
+                root.skins.len()
+            );
+            self.report.ignored.push(what);
+        }
+        for mesh in doc.meshes() {
+            for prim in mesh.primitives() {
+                let element = format!("meshes[{}].primitives[{}]", mesh.index(), prim.index());
+                if prim.morph_targets().len() > 0 {
+                    let what = format!("{element}: morph targets ignored (the base shape is rendered)");
+                    self.report.ignored.push(what);
+                }
+                if prim.get(&gltf::Semantic::Colors(0)).is_some() {
+                    self.report
+                        .ignored
+                        .push(format!("{element}: vertex colours (COLOR_0) ignored"));
+                }
             }
         }
     }
