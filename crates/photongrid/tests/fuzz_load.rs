@@ -329,11 +329,16 @@ fn mutate_json(doc: &mut Value, m: &Mutation) {
             }
         }
         Mutation::Cycle { a, b } => {
-            let n = doc["nodes"].as_array().map(|n| n.len()).unwrap_or(0);
-            if n > 0 {
+            // Only between nodes that are still objects (an earlier mutation may have replaced
+            // the list or a node by something else).
+            let Some(nodes) = doc.get_mut("nodes").and_then(Value::as_array_mut) else {
+                return;
+            };
+            let n = nodes.len();
+            if n > 0 && nodes[a % n].is_object() && nodes[b % n].is_object() {
                 let (a, b) = (a % n, b % n);
-                doc["nodes"][a]["children"] = json!([b]);
-                doc["nodes"][b]["children"] = json!([a]);
+                nodes[a]["children"] = json!([b]);
+                nodes[b]["children"] = json!([a]);
             }
         }
         _ => {}
