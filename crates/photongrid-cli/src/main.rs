@@ -437,6 +437,7 @@ fn render(a: RenderArgs) -> Result<()> {
         &a.scene,
         &LoadOptions {
             allow_external_uris: a.allow_external_uris,
+            ..Default::default()
         },
     )?;
     let load_seconds = phase.finish();

@@ -808,3 +808,147 @@ pub fn repo_root() -> PathBuf {
 pub fn sample(name: &str) -> PathBuf {
     repo_root().join("samples").join(name)
 }
+
+/// Split a GLB into its JSON document and its binary chunk (empty if none); `None` if the
+/// bytes are not a well-formed GLB. With [`glb_bytes`] it allows hand edits of existing files.
+pub fn glb_parts(bytes: &[u8]) -> Option<(Value, Vec<u8>)> {
+    let u32_at = |i: usize| Some(u32::from_le_bytes(bytes.get(i..i + 4)?.try_into().ok()?) as usize);
+    if bytes.get(0..4)? != b"glTF" {
+        return None;
+    }
+    let json_len = u32_at(12)?;
+    let json: Value = serde_json::from_slice(bytes.get(20..20 + json_len)?).ok()?;
+    let bin_at = 20 + json_len;
+    let bin = match u32_at(bin_at) {
+        Some(len) => bytes.get(bin_at + 8..bin_at + 8 + len)?.to_vec(),
+        None => Vec::new(),
+    };
+    Some((json, bin))
+}
+
+/// The base scene of the hostile-input corpus (issue 12): a floor and a wall quad, a 2000 cd
+/// point light and a camera at (0, 1.5, 5) looking at the wall.
+pub fn hostile_base() -> Gltf {
+    let mut g = Gltf::new();
+    let m = g.material(Material::lambert(0.7));
+    let wall = Prim::new(vec![
+        [-2.0, 0.0, -2.0],
+        [2.0, 0.0, -2.0],
+        [2.0, 3.0, -2.0],
+        [-2.0, 3.0, -2.0],
+    ])
+    .normals(vec![[0.0, 0.0, 1.0]; 4])
+    .texcoords(vec![[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]])
+    .indices_u16(vec![0, 1, 2, 0, 2, 3])
+    .material(m);
+    let mesh = g.mesh(vec![floor_quad(3.0, 0.0).material(m), wall]);
+    g.root(Node {
+        name: Some("Room".into()),
+        mesh: Some(mesh),
+        ..Default::default()
+    });
+    let l = g.light(Light::point(2000.0));
+    g.root(Node {
+        name: Some("Lamp".into()),
+        transform: Transform::translation([0.0, 2.5, 1.0]),
+        light: Some(l),
+        ..Default::default()
+    });
+    let c = g.camera(Camera::Perspective {
+        yfov: 0.7,
+        aspect: Some(4.0 / 3.0),
+    });
+    g.root(Node {
+        name: Some("Camera".into()),
+        transform: Transform::translation([0.0, 1.5, 5.0]),
+        camera: Some(c),
+        ..Default::default()
+    });
+    g
+}
+
+// ---------------------------------------------------------------------------------------------
+// PNG.
+
+/// CRC-32 (IEEE) as PNG chunks use it.
+fn crc32(data: &[u8]) -> u32 {
+    let mut crc = !0u32;
+    for &b in data {
+        crc ^= b as u32;
+        for _ in 0..8 {
+            crc = if crc & 1 != 0 {
+                (crc >> 1) ^ 0xEDB8_8320
+            } else {
+                crc >> 1
+            };
+        }
+    }
+    !crc
+}
+
+fn png_chunk(out: &mut Vec<u8>, kind: &[u8; 4], data: &[u8]) {
+    out.extend_from_slice(&(data.len() as u32).to_be_bytes());
+    let start = out.len();
+    out.extend_from_slice(kind);
+    out.extend_from_slice(data);
+    let crc = crc32(&out[start..]);
+    out.extend_from_slice(&crc.to_be_bytes());
+}
+
+/// A PNG with the IHDR of a `width × height` 8-bit image of `channels` (1 grey, 2 grey+alpha,
+/// 3 RGB, 4 RGBA) and `idat` as its compressed data, verbatim.
+fn png_with_idat(width: u32, height: u32, channels: u8, idat: &[u8]) -> Vec<u8> {
+    let color = match channels {
+        1 => 0,
+        2 => 4,
+        3 => 2,
+        _ => 6,
+    };
+    let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
+    let mut ihdr = Vec::new();
+    ihdr.extend_from_slice(&width.to_be_bytes());
+    ihdr.extend_from_slice(&height.to_be_bytes());
+    ihdr.extend_from_slice(&[8, color, 0, 0, 0]);
+    png_chunk(&mut out, b"IHDR", &ihdr);
+    png_chunk(&mut out, b"IDAT", idat);
+    png_chunk(&mut out, b"IEND", &[]);
+    out
+}
+
+/// An uncompressed (stored) PNG of `width × height` 8-bit pixels with `channels` channels,
+/// rows top first; `pixels` has `width × height × channels` bytes.
+pub fn png_bytes(width: u32, height: u32, channels: u8, pixels: &[u8]) -> Vec<u8> {
+    let row = width as usize * channels as usize;
+    let mut raw = Vec::with_capacity((row + 1) * height as usize);
+    for r in pixels.chunks(row).take(height as usize) {
+        raw.push(0); // filter: none
+        raw.extend_from_slice(r);
+    }
+    // zlib: header, stored deflate blocks of at most 65535 bytes, Adler-32.
+    let mut z = vec![0x78, 0x01];
+    let blocks: Vec<&[u8]> = raw.chunks(65535).collect();
+    for (i, block) in blocks.iter().enumerate() {
+        z.push((i + 1 == blocks.len()) as u8);
+        z.extend_from_slice(&(block.len() as u16).to_le_bytes());
+        z.extend_from_slice(&(!(block.len() as u16)).to_le_bytes());
+        z.extend_from_slice(block);
+    }
+    let (mut a, mut b) = (1u32, 0u32);
+    for &x in &raw {
+        a = (a + x as u32) % 65521;
+        b = (b + a) % 65521;
+    }
+    z.extend_from_slice(&(b << 16 | a).to_be_bytes());
+    png_with_idat(width, height, channels, &z)
+}
+
+/// A PNG whose header declares `width × height` RGBA pixels but which holds (almost) no pixel
+/// data: a tiny file that would decode to a huge image.
+pub fn png_header_only(width: u32, height: u32) -> Vec<u8> {
+    png_with_idat(
+        width,
+        height,
+        4,
+        &[0x78, 0x01, 0x01, 0x00, 0x00, 0xff, 0xff, 0, 0, 0, 1],
+    )
+}
