@@ -6,9 +6,9 @@
 
 use crate::accel::Accel;
 use crate::estimate::{Estimator, IrradianceCache, PassGrids, PhotonMap};
+use crate::film::Film;
 use crate::grid::multiscale::{MultiscaleGrids, MultiscaleParams};
 use crate::grid::PlaneGrids;
-use crate::film::Film;
 use crate::grid::{GridParams, Grids};
 use crate::photon::{trace_photons, Photon, PhotonKind, PhotonStats, TraceSettings};
 use crate::progress::Progress;

@@ -159,7 +159,9 @@ impl Grids {
         });
         let voxels = want_voxels.then(|| {
             // In auto mode voxels cover only what planes do not.
-            let served: Vec<usize> = (0..scene.triangles.len()).filter(|&t| !on_plane[t] && receives[t]).collect();
+            let served: Vec<usize> = (0..scene.triangles.len())
+                .filter(|&t| !on_plane[t] && receives[t])
+                .collect();
             let tris: Vec<[Vec3; 3]> = served.iter().map(|&t| scene.triangles[t].p).collect();
             let area: f32 = served.iter().map(|&t| scene.triangles[t].area()).sum();
             let share = area / total_area;

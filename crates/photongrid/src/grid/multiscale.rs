@@ -176,7 +176,10 @@ impl LayerTexture {
     }
 
     fn memory_bytes(&self) -> usize {
-        self.levels.iter().map(|l| l.texels.len() * std::mem::size_of::<Texel>()).sum()
+        self.levels
+            .iter()
+            .map(|l| l.texels.len() * std::mem::size_of::<Texel>())
+            .sum()
     }
 }
 
@@ -311,7 +314,12 @@ impl MultiscaleGrids {
             .map(|(i, t)| {
                 let p = &t[0].plane;
                 let layer = |l: &LayerTexture| {
-                    format!("{}×{} cells of {:.1} mm", l.plane.res_u, l.plane.res_v, l.cell_size() * 1e3)
+                    format!(
+                        "{}×{} cells of {:.1} mm",
+                        l.plane.res_u,
+                        l.plane.res_v,
+                        l.cell_size() * 1e3
+                    )
                 };
                 let covered: f64 = t[1].levels[0].texels.iter().map(|c| c.area as f64).sum();
                 format!(
@@ -338,7 +346,11 @@ fn fine_resolutions(
     params: &MultiscaleParams,
 ) -> Vec<[(usize, usize); LAYERS]> {
     const COARSE: usize = 32;
-    let coarse: Vec<Plane> = set.planes.iter().map(|p| p.clone().with_resolution(COARSE, COARSE)).collect();
+    let coarse: Vec<Plane> = set
+        .planes
+        .iter()
+        .map(|p| p.clone().with_resolution(COARSE, COARSE))
+        .collect();
     let mut counts = vec![[[0u32; COARSE * COARSE]; LAYERS]; set.planes.len()];
     for (p, &t) in photons.iter().zip(triangles) {
         let plane = set.plane_of_triangle.get(t as usize).copied().unwrap_or(NO_PLANE);
@@ -357,7 +369,10 @@ fn fine_resolutions(
             std::array::from_fn(|l| {
                 let mut sorted: Vec<u32> = layers[l].iter().copied().filter(|&n| n > 0).collect();
                 sorted.sort_unstable();
-                let dense = sorted.get(sorted.len().saturating_sub(1) * 99 / 100).copied().unwrap_or(0);
+                let dense = sorted
+                    .get(sorted.len().saturating_sub(1) * 99 / 100)
+                    .copied()
+                    .unwrap_or(0);
                 let density = dense as f32 / p.cell_area().max(1e-30);
                 let size = if density > 0.0 {
                     (params.photons_per_cell / density).sqrt()
@@ -373,7 +388,10 @@ fn fine_resolutions(
         .planes
         .iter()
         .zip(&cell)
-        .flat_map(|(p, c)| c.iter().map(move |&c| ((p.size_u / c).ceil() * (p.size_v / c).ceil()) as f64))
+        .flat_map(|(p, c)| {
+            c.iter()
+                .map(move |&c| ((p.size_u / c).ceil() * (p.size_v / c).ceil()) as f64)
+        })
         .sum();
     if total > params.cell_budget as f64 {
         let grow = (total / params.cell_budget as f64).sqrt() as f32;
@@ -504,7 +522,13 @@ mod tests {
         let (mut photons, mut tri) = (Vec::new(), Vec::new());
         for _ in 0..n {
             let (x, z) = (rng.uniform() * 2.0, rng.uniform() * 2.0);
-            photons.push(Photon::new(Vec3::new(x, 0.0, z), power, Vec3::Y, Vec3::Y, PhotonKind::Indirect));
+            photons.push(Photon::new(
+                Vec3::new(x, 0.0, z),
+                power,
+                Vec3::Y,
+                Vec3::Y,
+                PhotonKind::Indirect,
+            ));
             tri.push(if z > x { 0 } else { 1 });
         }
         let g = MultiscaleGrids::build(set, &tris, &photons, &tri, &MultiscaleParams::default(), &|_, _| false);
@@ -518,12 +542,20 @@ mod tests {
             tex.plane.res_v,
             tex.plane.cell_area()
         );
-        for p in [Vec3::new(1.0, 0.0, 1.0), Vec3::new(0.001, 0.0, 0.001), Vec3::new(1.999, 0.0, 0.5)] {
+        for p in [
+            Vec3::new(1.0, 0.0, 1.0),
+            Vec3::new(0.001, 0.0, 0.001),
+            Vec3::new(1.999, 0.0, 0.5),
+        ] {
             for s in tex.scales(p).skip(3) {
                 let e = s.texel.flux[0] / s.texel.area;
                 let sigma = s.texel.var.sqrt() / s.texel.area;
                 // Within 4 σ of 1 W/m², corners included (the area counts only the surface).
-                assert!((e - 1.0).abs() < 4.0 * sigma + 1e-3, "{p} level {}: {e} ± {sigma}", s.level);
+                assert!(
+                    (e - 1.0).abs() < 4.0 * sigma + 1e-3,
+                    "{p} level {}: {e} ± {sigma}",
+                    s.level
+                );
             }
         }
     }
