@@ -44,6 +44,10 @@ pub struct Gather {
     pub r2: f32,
     /// Photons used.
     pub count: usize,
+    /// True when the estimate leaves out indirect light, which final gathering must then add
+    /// (the methods that show only caustics at visible points when gathering); false when the
+    /// estimate already includes it.
+    pub needs_gathering: bool,
 }
 
 /// The photons of one render, indexed for neighbour queries.
@@ -101,6 +105,7 @@ impl PhotonMap {
             flux,
             r2,
             count: found.len(),
+            needs_gathering: false,
         }
     }
 
