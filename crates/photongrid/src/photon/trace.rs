@@ -251,8 +251,12 @@ fn trace_path(
                     (PassKind::Global { .. }, PhotonKind::Indirect) => true,
                 };
                 if store {
+                    // Stochastic rounding of the power: the photons share a few exact powers,
+                    // which nearest rounding would bias all alike (see `rgbe_encode_dithered`).
+                    // One uniform for all channels: each is unbiased, and grey stays grey.
+                    let dither = Vec3::splat(rng.uniform());
                     out.push(
-                        Photon::new(sp.position, power, sp.facing_normal, -dir, kind),
+                        Photon::dithered(sp.position, power, sp.facing_normal, -dir, kind, dither),
                         hit.triangle,
                     );
                 }
