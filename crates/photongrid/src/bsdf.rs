@@ -63,33 +63,58 @@ pub struct SpecularSample {
 }
 
 /// Both branches at a smooth dielectric for a ray `d` hitting a surface with geometric normal
-/// `ng` (any orientation). Returns (reflection, refraction) with Fresnel weights; refraction is
-/// None on total internal reflection (then reflection carries weight 1).
-pub fn dielectric_branches(d: Vec3, ng: Vec3, ior: f32, tint: Rgb) -> (SpecularSample, Option<SpecularSample>) {
+/// `ng` and shading normal `ns` (either orientation; pass `ng` twice for a flat-shaded surface).
+/// Returns (reflection, refraction) with Fresnel weights; refraction is None on total internal
+/// reflection (then reflection carries weight 1).
+///
+/// The geometric normal says which side the ray is on (entering or leaving); the Fresnel
+/// factor and both directions follow the interpolated shading normal, as Blender (Cycles) and
+/// the references do: on a smooth-shaded wavy surface, the facets' constant normals would break
+/// a caustic's continuous filaments into the images of flat facets. Where the shading normal
+/// faces away from the ray, or would send a branch to the wrong side of the real surface
+/// (grazing rays where the normal is bent), the geometric normal is used for both branches.
+pub fn dielectric_branches(
+    d: Vec3,
+    ng: Vec3,
+    ns: Vec3,
+    ior: f32,
+    tint: Rgb,
+) -> (SpecularSample, Option<SpecularSample>) {
     let entering = d.dot(ng) < 0.0;
-    let n = if entering { ng } else { -ng };
+    let n_geo = if entering { ng } else { -ng };
     let eta = if entering { 1.0 / ior } else { ior };
-    let f = fresnel_dielectric(-d.dot(n), eta);
-    let r = SpecularSample {
-        direction: reflect(d, n),
-        weight: Rgb::splat(f),
-        transmitted: false,
-    };
-    match refract(d, n, eta) {
-        Some(t) if f < 1.0 => {
-            // Tint applies once per crossing into or out of the material (Blender's glass colour
-            // tints each passage); with white glass this is 1.
-            let tint = if entering { tint } else { Rgb::ONE };
-            (
+    // Tint applies once per crossing into or out of the material (Blender's glass colour tints
+    // each passage); with white glass this is 1.
+    let tint = if entering { tint } else { Rgb::ONE };
+    let branches = |n: Vec3| {
+        let f = fresnel_dielectric(-d.dot(n), eta);
+        let r = SpecularSample {
+            direction: reflect(d, n),
+            weight: Rgb::splat(f),
+            transmitted: false,
+        };
+        match refract(d, n, eta) {
+            Some(t) if f < 1.0 => (
                 r,
                 Some(SpecularSample {
                     direction: t,
                     weight: tint * (1.0 - f),
                     transmitted: true,
                 }),
-            )
+            ),
+            _ => (SpecularSample { weight: Rgb::ONE, ..r }, None),
         }
-        _ => (SpecularSample { weight: Rgb::ONE, ..r }, None),
+    };
+    let n_sh = if ns.dot(n_geo) < 0.0 { -ns } else { ns };
+    if !(n_sh.is_finite() && -d.dot(n_sh) > 0.0) {
+        return branches(n_geo);
+    }
+    let (r, t) = branches(n_sh);
+    let valid = r.direction.dot(n_geo) > 0.0 && t.is_none_or(|t| t.direction.dot(n_geo) < 0.0);
+    if valid {
+        (r, t)
+    } else {
+        branches(n_geo)
     }
 }
 
@@ -132,7 +157,7 @@ fn fresnel_branches(surface: &Surface, d: Vec3, sp: &SurfacePoint) -> Option<(Sc
             Some((r, None))
         }
         Surface::Dielectric { ior, tint, .. } => {
-            let (r, t) = dielectric_branches(d, sp.geometric_normal, *ior, *tint);
+            let (r, t) = dielectric_branches(d, sp.geometric_normal, sp.facing_shading_normal, *ior, *tint);
             Some((scatter(r), t.map(scatter)))
         }
     }
@@ -207,7 +232,7 @@ mod tests {
             if d.dot(ng).abs() < 1e-3 {
                 continue;
             }
-            let (r, t) = dielectric_branches(d, ng, 1.5, Rgb::ONE);
+            let (r, t) = dielectric_branches(d, ng, ng, 1.5, Rgb::ONE);
             let total = r.weight.x + t.map(|t| t.weight.x).unwrap_or(0.0);
             assert!((total - 1.0).abs() < 1e-5, "energy {total}");
             assert!((r.direction.length() - 1.0).abs() < 1e-4);
@@ -222,6 +247,40 @@ mod tests {
                 assert!(t.direction.dot(ng) * d.dot(ng) > 0.0, "transmission crosses");
             }
         }
+    }
+
+    #[test]
+    fn dielectric_follows_the_shading_normal_and_stays_on_valid_sides() {
+        let mut rng = Rng::keyed(9, 9, 10);
+        let ng = Vec3::Y;
+        // A shading normal tilted by 1° (the pool slab's wavy top: up to 1.1°).
+        let ns = Vec3::new(1f32.to_radians().sin(), 1f32.to_radians().cos(), 0.0);
+        let mut followed = 0;
+        for _ in 0..20_000 {
+            let d = uniform_sphere(rng.uniform2());
+            if d.dot(ng).abs() < 1e-3 {
+                continue;
+            }
+            let (r, t) = dielectric_branches(d, ng, ns, 1.33, Rgb::ONE);
+            let total = r.weight.x + t.map(|t| t.weight.x).unwrap_or(0.0);
+            assert!((total - 1.0).abs() < 1e-5, "energy {total}");
+            // Reflection stays on the incident side of the real surface, refraction crosses it.
+            assert!(r.direction.dot(ng) * d.dot(ng) < 0.0);
+            if let Some(t) = t {
+                assert!(t.direction.dot(ng) * d.dot(ng) > 0.0);
+            }
+            // Away from grazing, the mirror direction is the one about the shading normal.
+            if d.dot(ng).abs() > 0.2 {
+                let n = if d.dot(ng) < 0.0 { ns } else { -ns };
+                assert!((r.direction - reflect(d, n)).length() < 1e-5);
+                followed += 1;
+            }
+        }
+        assert!(followed > 10_000);
+        // Flat shading (ns = ng) is the plain geometric interface.
+        let d = Vec3::new(0.3, -1.0, 0.1).normalize();
+        let (r, _) = dielectric_branches(d, ng, ng, 1.33, Rgb::ONE);
+        assert!((r.direction - reflect(d, ng)).length() < 1e-6);
     }
 
     #[test]
