@@ -25,7 +25,9 @@ pub struct Photon {
     normal: [u16; 2],
     direction: [u8; 2],
     kind: u8,
-    _pad: u8,
+    /// Surface interactions of the photon's path up to and including this one (glass and
+    /// mirrors count), 1 for light arriving straight from the light.
+    depth: u8,
 }
 
 const _: () = assert!(std::mem::size_of::<Photon>() == 24);
@@ -51,8 +53,15 @@ impl Photon {
             normal: [quantise(n.x, 16) as u16, quantise(n.y, 16) as u16],
             direction: [quantise(d.x, 8) as u8, quantise(d.y, 8) as u8],
             kind: kind as u8,
-            _pad: 0,
+            depth: 1,
         }
+    }
+
+    /// The same photon recorded as the `depth`-th surface interaction of its path (1: the first
+    /// surface the light reached; saturates at 255).
+    pub fn with_depth(mut self, depth: u32) -> Self {
+        self.depth = depth.clamp(1, 255) as u8;
+        self
     }
 
     /// Power [W] per channel.
@@ -83,6 +92,13 @@ impl Photon {
             1 => PhotonKind::Caustic,
             _ => PhotonKind::Indirect,
         }
+    }
+
+    /// Surface interactions of the path up to this photon, glass and mirrors included (1: straight
+    /// from the light). Seen by the camera at the photon, the light has travelled `depth + 1`
+    /// segments; through one final-gather bounce, `depth + 2`.
+    pub fn depth(&self) -> u32 {
+        self.depth as u32
     }
 
     /// Position as a vector.
@@ -201,6 +217,8 @@ mod tests {
             );
             assert!((q - p).abs().max_element() <= 0.5 * step * (1.0 + 1e-5), "{p} {q}");
             assert_eq!(ph.kind(), PhotonKind::Caustic);
+            assert_eq!(ph.depth(), 1);
+            assert_eq!(ph.with_depth(11).depth(), 11);
         }
         // Just below a power of two: rounds up to the power of two, not down by a step.
         let below = 1.0 - 1e-4;

@@ -18,7 +18,8 @@ use rayon::prelude::*;
 pub struct TraceSettings {
     /// Photons emitted (paths started).
     pub photons: usize,
-    /// Bounces after which a path stops.
+    /// Surface interactions (diffuse, glass and mirror hits) after which a path stops; a photon
+    /// stored at the n-th records n ([`Photon::depth`]).
     pub max_depth: u32,
     /// Keep photons of direct light (the single-map method needs them; shadow rays do not).
     pub store_direct: bool,
@@ -231,7 +232,7 @@ fn trace_path(
     out: &mut Out,
 ) {
     let mut kind = PhotonKind::Direct;
-    for _depth in 0..settings.max_depth {
+    for depth in 1..=settings.max_depth {
         let Some(hit) = accel.intersect(origin, dir, f32::INFINITY) else {
             return;
         };
@@ -256,7 +257,7 @@ fn trace_path(
                     // One uniform for all channels: each is unbiased, and grey stays grey.
                     let dither = Vec3::splat(rng.uniform());
                     out.push(
-                        Photon::dithered(sp.position, power, sp.facing_normal, -dir, kind, dither),
+                        Photon::dithered(sp.position, power, sp.facing_normal, -dir, kind, dither).with_depth(depth),
                         hit.triangle,
                     );
                 }
