@@ -60,6 +60,25 @@ pub struct SpecularSample {
     pub weight: Rgb,
     /// True if the ray went through the surface.
     pub transmitted: bool,
+    /// The normal the direction was computed about (the shading normal, or the geometric one
+    /// where the shading normal could not be used), on the incident side.
+    pub normal: Vec3,
+}
+
+/// Veach's adjoint correction for shading normals (Veach 1997, §5.3.2; Mitsuba's particle
+/// tracer applies the same): light (a photon) scattered from direction `wi` (pointing back to
+/// where it came from) into `wo` at a surface whose scattering used the normal `ns`, while the
+/// surface really has the geometric normal `ng`, carries |wi·ns| |wo·ng| / (|wo·ns| |wi·ng|)
+/// times the BSDF weight, so that particle tracing agrees with tracing from the camera through
+/// the same interpolated normals. None where `ns` and `ng` disagree about which side `wi` or `wo`
+/// is on (the path would leak through the surface).
+pub fn adjoint_shading_correction(wi: Vec3, wo: Vec3, ng: Vec3, ns: Vec3) -> Option<f32> {
+    let (i_g, i_s, o_g, o_s) = (wi.dot(ng), wi.dot(ns), wo.dot(ng), wo.dot(ns));
+    if i_g * i_s <= 0.0 || o_g * o_s <= 0.0 {
+        return None;
+    }
+    let c = (i_s * o_g / (o_s * i_g)).abs();
+    c.is_finite().then_some(c)
 }
 
 /// Both branches at a smooth dielectric for a ray `d` hitting a surface with geometric normal
@@ -92,6 +111,7 @@ pub fn dielectric_branches(
             direction: reflect(d, n),
             weight: Rgb::splat(f),
             transmitted: false,
+            normal: n,
         };
         match refract(d, n, eta) {
             Some(t) if f < 1.0 => (
@@ -100,6 +120,7 @@ pub fn dielectric_branches(
                     direction: t,
                     weight: tint * (1.0 - f),
                     transmitted: true,
+                    normal: n,
                 }),
             ),
             _ => (SpecularSample { weight: Rgb::ONE, ..r }, None),
@@ -125,6 +146,8 @@ pub struct Scatter {
     pub direction: Vec3,
     /// Throughput multiplier.
     pub weight: Rgb,
+    /// The normal the direction was computed about (for the adjoint shading-normal weight).
+    pub normal: Vec3,
 }
 
 /// Beer–Lambert transmittance of the path inside a dielectric that ends at this hit: the ray
@@ -145,6 +168,7 @@ fn fresnel_branches(surface: &Surface, d: Vec3, sp: &SurfacePoint) -> Option<(Sc
     let scatter = |s: SpecularSample| Scatter {
         direction: s.direction,
         weight: s.weight,
+        normal: s.normal,
     };
     match surface {
         Surface::Lambert { .. } => None,
@@ -153,6 +177,7 @@ fn fresnel_branches(surface: &Surface, d: Vec3, sp: &SurfacePoint) -> Option<(Sc
             let r = Scatter {
                 direction: reflect(d, n),
                 weight: fresnel_schlick(*f0, -d.dot(n)),
+                normal: n,
             };
             Some((r, None))
         }
@@ -281,6 +306,25 @@ mod tests {
         let d = Vec3::new(0.3, -1.0, 0.1).normalize();
         let (r, _) = dielectric_branches(d, ng, ng, 1.33, Rgb::ONE);
         assert!((r.direction - reflect(d, ng)).length() < 1e-6);
+    }
+
+    #[test]
+    fn adjoint_correction_for_shading_normals() {
+        let ng = Vec3::Y;
+        let wi = Vec3::new(0.6, 0.8, 0.0);
+        // Flat shading: no correction, whatever the directions.
+        let wo = Vec3::new(-0.3, -0.9, 0.2).normalize();
+        assert!((adjoint_shading_correction(wi, wo, ng, ng).unwrap() - 1.0).abs() < 1e-6);
+        // Mirror about a tilted shading normal: |wi·ns| = |wo·ns|, so the weight is the ratio of
+        // the geometric cosines (Veach 1997, eq. 5.20).
+        let ns = Vec3::new(0.05, 1.0, 0.0).normalize();
+        let wo = reflect(-wi, ns);
+        let c = adjoint_shading_correction(wi, wo, ng, ns).unwrap();
+        assert!((c - wo.dot(ng).abs() / wi.dot(ng).abs()).abs() < 1e-5, "{c}");
+        // A direction the shading normal puts on the other side than the surface does: leak.
+        let grazing = Vec3::new(-1.0, 0.01, 0.0).normalize();
+        assert!(grazing.dot(ns) < 0.0 && grazing.dot(ng) > 0.0);
+        assert!(adjoint_shading_correction(wi, grazing, ng, ns).is_none());
     }
 
     #[test]

@@ -281,15 +281,20 @@ fn trace_path(
                 let Some(s) = bsdf::sample_specular(surface, dir, &sp, hit.t, rng) else {
                     return;
                 };
+                // Interpolated normals: Veach's adjoint weight (photons travel against the
+                // direction the camera pass traces), and no path through the surface.
+                let Some(c) = bsdf::adjoint_shading_correction(-dir, s.direction, sp.facing_normal, s.normal) else {
+                    return;
+                };
                 // Russian roulette where the weight is below one keeps the power nearly constant.
                 let q = s.weight.max_element().min(1.0);
                 if q < 1.0 {
                     if rng.uniform() >= q {
                         return;
                     }
-                    power *= s.weight / q;
+                    power *= s.weight / q * c;
                 } else {
-                    power *= s.weight;
+                    power *= s.weight * c;
                 }
                 dir = s.direction;
                 origin = sp.offset(dir);
