@@ -22,6 +22,8 @@ pub mod sampling;
 pub mod scene;
 pub mod settings;
 pub mod surface;
+#[cfg(test)]
+pub(crate) mod test_util;
 
 /// Linear RGB in Rec.709 primaries (radiance, flux or reflectance depending on context).
 pub type Rgb = glam::Vec3;

@@ -1027,6 +1027,7 @@ fn min_area_direction(hull: &[DVec2]) -> DVec2 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_util::{test_rng, uv_sphere};
     use glam::Quat;
     use std::f32::consts::{PI, TAU};
 
@@ -1056,34 +1057,6 @@ mod tests {
                 let n = axes[k] * sign;
                 let (hu, hv) = (axes[(k + 1) % 3], axes[(k + 2) % 3]);
                 out.extend(quad(center + q * n, q * hu, q * hv, q * n));
-            }
-        }
-        out
-    }
-
-    fn uv_sphere(center: Vec3, r: f32, segments: usize, rings: usize) -> Vec<[Vec3; 3]> {
-        let p = |ring: usize, seg: usize| -> Vec3 {
-            let th = PI * ring as f32 / rings as f32;
-            let ph = TAU * (seg % segments) as f32 / segments as f32;
-            center + r * Vec3::new(th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin())
-        };
-        let mut out = Vec::new();
-        for ring in 0..rings {
-            for s in 0..segments {
-                let (a, b, c, d) = (p(ring, s), p(ring, s + 1), p(ring + 1, s + 1), p(ring + 1, s));
-                // Ring 0 starts at the pole (a == b), the last ring ends at
-                // the other pole (c == d): one triangle there, two elsewhere.
-                let mut tris = Vec::new();
-                if ring != 0 {
-                    tris.push([a, b, c]);
-                }
-                if ring != rings - 1 {
-                    tris.push([a, c, d]);
-                }
-                for t in tris {
-                    let dir = (t[0] + t[1] + t[2]) / 3.0 - center;
-                    out.push(orient(t, dir));
-                }
             }
         }
         out
@@ -1172,17 +1145,6 @@ mod tests {
         }
         let assigned = set.plane_of_triangle.iter().filter(|&&p| p != NO_PLANE).count();
         assert_eq!(assigned, count);
-    }
-
-    struct Lcg(u64);
-    impl Lcg {
-        fn next_f32(&mut self) -> f32 {
-            self.0 = self
-                .0
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (self.0 >> 40) as f32 / (1u64 << 24) as f32
-        }
     }
 
     // ------------------------------------------------------------------ tests
@@ -1552,8 +1514,8 @@ mod tests {
     #[test]
     fn bilinear_is_continuous() {
         let (pl, _) = tilted_plane(16);
-        let mut rng = Lcg(7);
-        let field: Vec<f32> = (0..pl.cell_count()).map(|_| rng.next_f32()).collect();
+        let mut rng = test_rng(7);
+        let field: Vec<f32> = (0..pl.cell_count()).map(|_| rng.uniform()).collect();
         let value = |p: Vec3| -> f32 { pl.bilinear(p).iter().map(|&(c, w)| field[c] * w).sum() };
         // Lines crossing the whole rectangle (and beyond), several directions.
         let lines = [

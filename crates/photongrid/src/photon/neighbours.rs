@@ -1097,6 +1097,8 @@ impl<T: Positioned + Send + Sync + Clone> PointGrid<T> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::sampling::Rng;
+    use crate::test_util::test_rng;
     use proptest::prelude::*;
 
     #[derive(Clone, Debug)]
@@ -1111,27 +1113,23 @@ mod tests {
         }
     }
 
-    /// Small deterministic generator (SplitMix64).
-    struct Rng(u64);
+    /// Random points for the tests, drawn from the crate's generator.
+    trait Points {
+        fn range(&mut self, a: f32, b: f32) -> f32;
+        fn in_box(&mut self, lo: Vec3, hi: Vec3) -> Vec3;
+        fn on_box_faces(&mut self, half: f32) -> Vec3;
+        fn in_ball(&mut self, c: Vec3, r: f32) -> Vec3;
+    }
 
-    impl Rng {
-        fn next_u64(&mut self) -> u64 {
-            // SplitMix64: the crate's mixer applied to a Weyl sequence.
-            let z = self.0;
-            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            crate::sampling::mix64(z)
-        }
-        fn f(&mut self) -> f32 {
-            (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
-        }
+    impl Points for Rng {
         fn range(&mut self, a: f32, b: f32) -> f32 {
-            a + (b - a) * self.f()
+            a + (b - a) * self.uniform()
         }
         fn in_box(&mut self, lo: Vec3, hi: Vec3) -> Vec3 {
             Vec3::new(self.range(lo.x, hi.x), self.range(lo.y, hi.y), self.range(lo.z, hi.z))
         }
         fn on_box_faces(&mut self, half: f32) -> Vec3 {
-            let face = (self.next_u64() % 6) as usize;
+            let face = (self.next_u32() % 6) as usize;
             let u = self.range(-half, half);
             let v = self.range(-half, half);
             let s = if face.is_multiple_of(2) { half } else { -half };
@@ -1236,7 +1234,7 @@ mod tests {
     }
 
     fn box_points(n: usize, seed: u64) -> Vec<Vec3> {
-        let mut rng = Rng(seed);
+        let mut rng = test_rng(seed);
         (0..n).map(|_| rng.on_box_faces(1.0)).collect()
     }
 
@@ -1254,7 +1252,7 @@ mod tests {
         let n = 60_000;
         let g = PointGrid::build(items_from(box_points(n, 1)), suggest_cell_size(n, 24.0, 50));
         assert_eq!(g.len(), n);
-        let mut rng = Rng(2);
+        let mut rng = test_rng(2);
         let mut buf = KnnBuffer::new();
         for i in 0..300 {
             let q = if i % 3 == 0 {
@@ -1301,7 +1299,7 @@ mod tests {
             if cell >= 3.0 {
                 assert_eq!(cells, 1, "a huge cell size gives one top-level cell");
             }
-            let mut rng = Rng(4);
+            let mut rng = test_rng(4);
             let mut buf = KnnBuffer::default();
             for _ in 0..60 {
                 let q = rng.on_box_faces(1.0);
@@ -1315,7 +1313,7 @@ mod tests {
 
     #[test]
     fn dense_cluster_in_sparse_field() {
-        let mut rng = Rng(5);
+        let mut rng = test_rng(5);
         let centre = Vec3::new(0.3, -0.2, 0.1);
         let mut pts: Vec<Vec3> = (0..20_000)
             .map(|_| rng.in_box(Vec3::splat(-5.0), Vec3::splat(5.0)))
@@ -1343,7 +1341,7 @@ mod tests {
     #[test]
     fn caustic_disc_on_box() {
         // 20 % of the photons in a 5 cm disc on the floor: thousands share a top-level cell.
-        let mut rng = Rng(6);
+        let mut rng = test_rng(6);
         let n = 50_000;
         let mut pts = box_points(n * 4 / 5, 7);
         for _ in 0..n / 5 {
@@ -1391,7 +1389,7 @@ mod tests {
     #[test]
     fn empty_regions_limited_by_max_radius() {
         // Two far-apart planes; queries between them find nothing within max_radius.
-        let mut rng = Rng(9);
+        let mut rng = test_rng(9);
         let mut pts: Vec<Vec3> = (0..5000)
             .map(|_| Vec3::new(rng.range(0.0, 1.0), rng.range(0.0, 1.0), 0.0))
             .collect();
@@ -1473,7 +1471,7 @@ mod tests {
     fn accept_filter_is_honoured() {
         let n = 20_000;
         let g = PointGrid::build(items_from(box_points(n, 12)), suggest_cell_size(n, 24.0, 30));
-        let mut rng = Rng(13);
+        let mut rng = test_rng(13);
         let mut buf = KnnBuffer::new();
         let even = |it: &Item| it.id.is_multiple_of(2);
         let rare = |it: &Item| it.id.is_multiple_of(97);
@@ -1507,7 +1505,7 @@ mod tests {
 
     #[test]
     fn bounded_memory_for_huge_box() {
-        let mut rng = Rng(15);
+        let mut rng = test_rng(15);
         let pts: Vec<Vec3> = (0..1000)
             .map(|_| rng.in_box(Vec3::splat(-5e5), Vec3::splat(5e5)))
             .collect();
@@ -1533,7 +1531,7 @@ mod tests {
 
     /// Point sets for the property test.
     fn gen_points(mode: u8, n: usize, seed: u64, scale: f32) -> Vec<Vec3> {
-        let mut rng = Rng(seed);
+        let mut rng = test_rng(seed);
         let s = scale;
         (0..n)
             .map(|i| match mode {
@@ -1549,7 +1547,7 @@ mod tests {
                 3 => Vec3::splat(0.25 * s),
                 4 => {
                     // Grid-aligned points with many exact ties.
-                    let v = rng.next_u64();
+                    let v = rng.next_u32();
                     Vec3::new(
                         (v % 5) as f32 * 0.25 * s,
                         ((v >> 8) % 5) as f32 * 0.25 * s,
@@ -1578,13 +1576,13 @@ mod tests {
             let cell = 10f32.powi(cell_exp) * scale;
             let g = PointGrid::build(items_from(gen_points(mode, n, seed, scale)), cell);
             prop_assert_eq!(g.len(), n);
-            let mut rng = Rng(seed ^ 0xABCD);
+            let mut rng = test_rng(seed ^ 0xABCD);
             let mut buf = KnnBuffer::new();
             let max_r = max_r_frac * scale;
             for i in 0..12 {
                 let q = match i % 3 {
                     0 => rng.in_box(Vec3::splat(-1.5 * scale), Vec3::splat(1.5 * scale)),
-                    1 if n > 0 => g.items()[(rng.next_u64() % n as u64) as usize].p,
+                    1 if n > 0 => g.items()[rng.next_u32() as usize % n].p,
                     _ => rng.on_box_faces(scale),
                 };
                 match filter {
