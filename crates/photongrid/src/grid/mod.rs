@@ -2,6 +2,7 @@
 //! photon-count texture each (wavelet-filtered), and a sparse voxel grid for curved or small
 //! receivers; from the counts follows the assumed radius of METHOD.md eq. (3).
 
+mod noise;
 pub mod planes;
 pub mod radius;
 pub mod voxels;

@@ -19,7 +19,7 @@
 //!   coordinate to a dense slot index; per slot the voxel key, `area[6]` (f32, m²),
 //!   `count[6]` (u32), `flux[6]` (f32) and, after [`VoxelGrid::denoise`], filtered
 //!   counts `[6]` (f32). Memory is proportional to the number of voxels the surfaces
-//!   cross (≈ 130 bytes each), never to the bounding box.
+//!   cross, never to the bounding box.
 //! * **Grid space**: a point `p` maps to `g = (p − origin)·(1/s)`; its voxel is `floor(g)`.
 //!   The same f32 expression is used for triangle vertices and photons, so a surface lying
 //!   exactly on a voxel face is attributed consistently. [`VoxelGrid::from_triangles`] puts
@@ -46,6 +46,7 @@
 //!   bin, only over voxels that have area in the bin (see [`VoxelGrid::denoise_with`]).
 //!   Block totals are conserved exactly at every level, so the mean is preserved.
 
+use super::noise::{anscombe, mad_sigma, universal_threshold};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -358,7 +359,7 @@ struct Hierarchy {
 #[inline]
 fn residual(c: f64, lambda: f64, a_child: f64, a_pool: f64) -> f64 {
     let frac = (1.0 - a_child / a_pool).max(1e-9);
-    2.0 * ((c + 0.375).sqrt() - (lambda + 0.375).sqrt()) / frac.sqrt()
+    (anscombe(c) - anscombe(lambda)) / frac.sqrt()
 }
 
 /// Hard-threshold one block's details with sequential exclusion of significant children.
@@ -409,6 +410,34 @@ fn threshold_block(c: &[f64], a: &[f64], tau: f64, u: &mut [f64]) -> usize {
         u[j] = if kept[j] { c[j] } else { rho * a[j] };
     }
     n_kept
+}
+
+/// Noise level σ of the normalised finest details and their number `M` (steps 3 and 4 of
+/// [`VoxelGrid::denoise_with`]).
+fn finest_noise(hiers: &[Hierarchy]) -> (f64, usize) {
+    let mut z: Vec<f64> = Vec::new();
+    let mut m = 0usize;
+    for h in hiers {
+        let (l1, l0) = (&h.levels[1], &h.levels[0]);
+        for p in 0..l1.keys.len() {
+            let ch = l1.block(p);
+            if ch.len() < 2 || l1.c[p] <= 0.0 {
+                continue;
+            }
+            m += ch.len() - 1;
+            let rho = l1.c[p] / l1.a[p];
+            for &i in ch {
+                let i = i as usize;
+                z.push(residual(l0.c[i], rho * l0.a[i], l0.a[i], l1.a[p]));
+            }
+        }
+    }
+    let sigma = if z.is_empty() {
+        1.0
+    } else {
+        mad_sigma(&mut z).clamp(0.5, 4.0)
+    };
+    (sigma, m)
 }
 
 /// Statistics of one [`VoxelGrid::denoise_with`] pass.
@@ -946,31 +975,9 @@ impl VoxelGrid {
             .map(|b| self.hierarchy(b, levels))
             .collect();
 
-        let mut z: Vec<f64> = Vec::new();
-        let mut m = 0usize;
-        for h in &hiers {
-            let (l1, l0) = (&h.levels[1], &h.levels[0]);
-            for p in 0..l1.keys.len() {
-                let ch = l1.block(p);
-                if ch.len() < 2 || l1.c[p] <= 0.0 {
-                    continue;
-                }
-                m += ch.len() - 1;
-                let rho = l1.c[p] / l1.a[p];
-                for &i in ch {
-                    let i = i as usize;
-                    z.push(residual(l0.c[i], rho * l0.a[i], l0.a[i], l1.a[p]).abs());
-                }
-            }
-        }
-        let sigma = if z.is_empty() {
-            1.0
-        } else {
-            let mid = z.len() / 2;
-            let (_, med, _) = z.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
-            (*med / 0.6745).clamp(0.5, 4.0)
-        };
-        let tau = f64::from(threshold_scale.max(0.0)) * sigma * (2.0 * (m.max(2) as f64).ln()).sqrt();
+        let (sigma, m) = finest_noise(&hiers);
+        // Scaling σ rather than τ keeps the rounding of the product (scale·σ)·√(2 ln M).
+        let tau = universal_threshold(f64::from(threshold_scale.max(0.0)) * sigma, m.max(2));
 
         let results: Vec<(Vec<f64>, usize)> = hiers.par_iter().map(|h| Self::reconstruct(h, tau)).collect();
         let mut filtered = vec![[0.0f32; NORMAL_BINS]; self.count.len()];

@@ -14,7 +14,7 @@
 //! in the Anscombe domain, where the noise is close to unit variance, and map
 //! back with the exact unbiased inverse of Mäkitalo and Foi so that the mean
 //! photon level is not shifted (the naive algebraic inverse darkens dim
-//! regions by ~10 % at 2 photons per cell).
+//! regions). Those formulas live in `grid::noise`, shared with the voxel grid.
 //!
 //! Transforms use lifting with orthonormal-style scaling (the low band gains
 //! `√2` per axis and level, the high band stays near unit noise gain), work on
@@ -22,16 +22,15 @@
 //! whole-sample symmetric boundary extension for CDF 5/3 and 9/7, so a
 //! constant field has exactly zero detail coefficients, edges included.
 //!
-//! Measured behaviour (see the tests): on flat Poisson fields every wavelet
-//! and adaptive rule cuts the RMSE 15–36× and keeps the mean within 0.6 %.
-//! At a 40:1 step only Haar stays clean on the dim side; CDF 5/3 and 9/7
-//! ring there (tens of percent a few cells from the edge), and soft
-//! thresholding shrinks edges and bright spots. For count textures that feed
-//! kNN radii, `Wavelet::Haar` with `Threshold::Universal { soft: false }` is
-//! the recommended setting.
+//! At a sharp step only Haar stays clean on the dim side (its supports end at
+//! dyadic block boundaries); CDF 5/3 and 9/7 ring there, and soft
+//! thresholding shrinks edges and bright spots (see the tests). For count
+//! textures that feed kNN radii, `Wavelet::Haar` with
+//! `Threshold::Universal { soft: false }` is therefore the recommended setting.
 //!
 //! Everything here is plain `std`, without `unsafe`.
 
+use super::noise::{anscombe, inverse_anscombe_unbiased, mad_sigma, universal_threshold};
 use std::f64::consts::SQRT_2;
 
 /// Which wavelet.
@@ -301,49 +300,6 @@ pub fn denoise_counts(
 // ---------------------------------------------------------------------------
 // Formulas
 // ---------------------------------------------------------------------------
-
-/// Anscombe variance-stabilising transform: Poisson data become roughly
-/// unit-variance Gaussian, so one threshold fits dim and bright cells alike.
-fn anscombe(x: f64) -> f64 {
-    2.0 * (x + 0.375).sqrt()
-}
-
-/// Closed-form approximation of the exact unbiased inverse Anscombe
-/// transform (Mäkitalo and Foi 2011):
-/// `y²/4 + √(3/2)/(4y) − 11/(8y²) + 5√(3/2)/(8y³) − 1/8`, clamped at 0.
-///
-/// It maps `E[anscombe(z)]` back to the Poisson mean, which the algebraic
-/// inverse `(y/2)² − 3/8` underestimates at low counts.
-fn inverse_anscombe_unbiased(y: f64) -> f64 {
-    // No Poisson mean has E[anscombe(z)] below anscombe(0) (where this series
-    // is exactly 0), and below it the series turns back up: that is a zero count.
-    if y <= anscombe(0.0) {
-        return 0.0;
-    }
-    let s = 1.5f64.sqrt();
-    let y2 = y * y;
-    (0.25 * y2 + 0.25 * s / y - 1.375 / y2 + 0.625 * s / (y2 * y) - 0.125).max(0.0)
-}
-
-/// Robust noise sigma from the median absolute value of detail
-/// coefficients; 0.6745 is the median of |N(0, 1)|.
-fn mad_sigma(values: &mut [f64]) -> f64 {
-    if values.is_empty() {
-        return 0.0;
-    }
-    for v in values.iter_mut() {
-        *v = v.abs();
-    }
-    let mid = values.len() / 2;
-    let (_, median, _) = values.select_nth_unstable_by(mid, f64::total_cmp);
-    *median / 0.6745
-}
-
-/// Donoho–Johnstone universal threshold `sigma·√(2 ln n)`: with high
-/// probability above the largest of `n` pure-noise coefficients.
-fn universal_threshold(sigma: f64, n: usize) -> f64 {
-    sigma * (2.0 * (n.max(1) as f64).ln()).sqrt()
-}
 
 /// BayesShrink threshold `sigma²/sigma_x` for one subband, with
 /// `sigma_x² = max(mean(c²) − sigma², 0)`. A band with no energy above the
@@ -1060,29 +1016,6 @@ mod tests {
         }
         for &g in cdf97[2][4..12].iter().chain(&cdf97[2][20..28]) {
             assert!((g - 1.0).abs() < 0.15, "9/7 level-2 gain {g}");
-        }
-    }
-
-    #[test]
-    fn inverse_anscombe_formula() {
-        // Exactly zero at anscombe(0), zero below, and never negative.
-        assert!(inverse_anscombe_unbiased(anscombe(0.0)).abs() < 1e-12);
-        assert_eq!(inverse_anscombe_unbiased(0.5), 0.0);
-        assert_eq!(inverse_anscombe_unbiased(0.0), 0.0);
-        for i in 0..1000 {
-            let y = i as f64 * 0.05;
-            assert!(inverse_anscombe_unbiased(y) >= 0.0);
-        }
-        // Unbiased: maps E[anscombe(Poisson(λ))] back to λ.
-        for lambda in [1.0f64, 2.0, 5.0, 20.0, 200.0] {
-            let mut expect = 0.0;
-            let mut p = (-lambda).exp();
-            for k in 0..2000 {
-                expect += p * anscombe(k as f64);
-                p *= lambda / (k as f64 + 1.0);
-            }
-            let back = inverse_anscombe_unbiased(expect);
-            assert!((back - lambda).abs() < 0.01 * lambda, "λ={lambda}: {back}");
         }
     }
 
