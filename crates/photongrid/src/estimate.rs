@@ -1,8 +1,8 @@
 //! Radiance from photons: the density estimate of METHOD.md eq. (1) over a photon map.
 
-use crate::photon::neighbours::{KnnBuffer, PointGrid};
 use crate::photon::store::{oct_decode, oct_encode};
 use crate::photon::Photon;
+use crate::spatial::{KnnBuffer, PointGrid};
 use crate::Rgb;
 use glam::Vec2;
 use glam::Vec3;
@@ -24,7 +24,7 @@ pub fn density_radiance(albedo: Rgb, flux_sum: Rgb, r2: f32) -> Rgb {
 /// Cell size for a k-neighbour search over photons that may cover only part of the scene
 /// (caustics): the covered area is estimated from the cells a sample of photons occupies.
 fn cell_size_for(photons: &[Photon], k: usize, surface_area: f32) -> f32 {
-    use crate::photon::neighbours::suggest_cell_size;
+    use crate::spatial::suggest_cell_size;
     let n = photons.len().max(1);
     let mut cell = suggest_cell_size(n, surface_area.max(1e-6), k.max(1));
     let stride = (n / 1_000_000).max(1);
@@ -142,7 +142,7 @@ pub struct IrradiancePoint {
     pub irradiance: [f32; 3],
 }
 
-impl crate::photon::neighbours::Positioned for IrradiancePoint {
+impl crate::spatial::Positioned for IrradiancePoint {
     #[inline]
     fn position(&self) -> Vec3 {
         Vec3::from(self.position)
@@ -181,7 +181,7 @@ impl IrradianceCache {
             })
             .collect();
         let n = points.len().max(1);
-        let cell = crate::photon::neighbours::suggest_cell_size(n, surface_area.max(1e-6), 8).min(map.max_radius);
+        let cell = crate::spatial::suggest_cell_size(n, surface_area.max(1e-6), 8).min(map.max_radius);
         IrradianceCache {
             grid: PointGrid::build(points, cell),
             max_radius: map.max_radius,
