@@ -1,0 +1,5 @@
+//! Plane detection and per-plane photon-count grids.
+
+mod detection;
+
+pub use detection::*;
