@@ -46,7 +46,7 @@
 //!   bin, only over voxels that have area in the bin (see [`VoxelGrid::denoise_with`]).
 //!   Block totals are conserved exactly at every level, so the mean is preserved.
 
-use super::noise::{anscombe, mad_sigma, universal_threshold};
+use crate::grid::noise::{anscombe, mad_sigma, universal_threshold};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use std::collections::HashMap;

@@ -1,0 +1,5 @@
+//! Sparse 3D voxel grid of receiving-surface area and photon counts.
+
+mod grid;
+
+pub use grid::*;
