@@ -151,6 +151,9 @@ fn key_vec(k: [i32; 3]) -> Vec3 {
     Vec3::new(k[0] as f32, k[1] as f32, k[2] as f32)
 }
 
+// ---------------------------------------------------------------------------------------------
+// The grid.
+
 /// Sparse voxel grid of receiving-surface area, photon counts and flux per normal bin.
 ///
 /// A hash map from occupied voxel coordinates to dense slots; memory follows the surfaces,
