@@ -579,13 +579,12 @@ fn trace_pass(
         let _s = tracing::info_span!("irradiance").entered();
         // A gathered photon's light reaches the camera one bounce later than a photon shown
         // directly: keep the paths within `max_depth` segments (`Settings::gathered`).
-        let gathered: Vec<Photon> = photons.iter().filter(|p| settings.gathered(p.depth())).copied().collect();
-        let all = PhotonMap::build(
-            gathered,
-            settings.gather_neighbours,
-            scene.surface_area(),
-            max_radius,
-        );
+        let gathered: Vec<Photon> = photons
+            .iter()
+            .filter(|p| settings.gathered(p.depth()))
+            .copied()
+            .collect();
+        let all = PhotonMap::build(gathered, settings.gather_neighbours, scene.surface_area(), max_radius);
         let cache = IrradianceCache::build(
             &all,
             settings.gather_neighbours,

@@ -798,7 +798,7 @@ fn integrating_sphere_photon_flux_and_path_length() {
         let prepared = prepare(&scene, settings, &Progress::quiet(), &mut times).unwrap();
         let mut sum = 0.0f64;
         let mut deepest = 0;
-        for p in prepared.map.grid().items() {
+        for p in prepared.map.photons() {
             sum += p.power().x as f64;
             deepest = deepest.max(p.depth());
         }

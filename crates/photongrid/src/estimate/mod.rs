@@ -19,8 +19,8 @@ pub use photon_map::{Gather, PhotonMap, NORMAL_AGREEMENT};
 
 use crate::grid::multiscale::MultiscaleGrids;
 use crate::grid::{GridSample, Grids};
-use crate::photon::neighbours::KnnBuffer;
 use crate::settings::{Method, Settings};
+use crate::spatial::KnnBuffer;
 use density::{assumed_radius, blended_radius, progressive_neighbours};
 use glam::Vec3;
 

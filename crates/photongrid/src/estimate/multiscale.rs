@@ -39,7 +39,12 @@ pub struct LayerEstimate {
 /// The estimate at the widest scale whose confidence interval meets every finer one's.
 /// `floor` is one photon's variance (an empty kernel is not certain to be dark), `passes`
 /// divides the accumulated sums.
-pub fn choose_scale(scales: impl Iterator<Item = ScaleEstimate>, gamma: f32, floor: f32, passes: f32) -> Option<LayerEstimate> {
+pub fn choose_scale(
+    scales: impl Iterator<Item = ScaleEstimate>,
+    gamma: f32,
+    floor: f32,
+    passes: f32,
+) -> Option<LayerEstimate> {
     let (mut lo, mut hi) = (f32::NEG_INFINITY, f32::INFINITY);
     let mut best = None;
     for s in scales {

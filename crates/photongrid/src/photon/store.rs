@@ -1,6 +1,6 @@
 //! A photon record in 24 bytes: position, RGBE power, octahedral normal and direction, kind.
 
-use super::neighbours::Positioned;
+use crate::spatial::Positioned;
 use crate::Rgb;
 use glam::{Vec2, Vec3};
 
