@@ -463,10 +463,9 @@ impl GridState {
         }
     }
 
-    /// Add a pass's shown photons to the grids the estimate needs (building them at pass 0).
-    fn add(&mut self, scene: &Scene, accel: &Accel, settings: &Settings, photons: &[Photon], triangles: &[u32]) {
-        let needs = settings.method.needs();
-        if needs.grids {
+    /// Add a pass's shown photons to the paper's count textures (building them at pass 0).
+    fn add_paper(&mut self, scene: &Scene, settings: &Settings, photons: &[Photon], triangles: &[u32]) {
+        if settings.method.needs().grids {
             let params = GridParams::from(settings);
             match self.paper.as_mut() {
                 Some(g) => g.add(scene, photons, triangles, &params),
@@ -479,7 +478,20 @@ impl GridState {
                 }
             }
         }
-        if needs.multiscale {
+    }
+
+    /// Add all of a pass's photons, each kind to its layer, to the multiscale pyramids
+    /// (building them at pass 0): the camera reads the layers it shows, final-gather rays
+    /// read them all.
+    fn add_multiscale(
+        &mut self,
+        scene: &Scene,
+        accel: &Accel,
+        settings: &Settings,
+        photons: &[Photon],
+        triangles: &[u32],
+    ) {
+        if settings.method.needs().multiscale {
             match self.multiscale.as_mut() {
                 Some(g) => g.add(photons, triangles),
                 None => {
@@ -488,6 +500,7 @@ impl GridState {
                     let params = MultiscaleParams {
                         cell_budget: settings.grid_cells,
                         photons_per_cell: settings.cell_photons,
+                        max_radius: settings.max_radius * scene.bounds.diagonal(),
                         ..MultiscaleParams::default()
                     };
                     let buried = |p: glam::Vec3, n: glam::Vec3| inside_solid(scene, accel, p, n);
@@ -572,6 +585,12 @@ fn trace_pass(
         direct = stats.direct,
         "photons stored"
     );
+    if needs.multiscale {
+        let phase = progress.phase("grids", 0);
+        let _s = tracing::info_span!("grids", pass).entered();
+        grids.add_multiscale(scene, accel, settings, &photons, &photon_triangles);
+        times.grids += phase.finish();
+    }
     // Final gathering reads irradiance from all photons at the gather rays' hits; the camera
     // then sees only what gathering cannot give: caustics (and direct light in single-map mode).
     let irradiance = (gather > 0).then(|| {
@@ -584,21 +603,35 @@ fn trace_pass(
             .filter(|p| settings.gathered(p.depth()))
             .copied()
             .collect();
+        // Gather rays that land on a multiscale plane read the pyramids: precompute only
+        // where the rest land.
+        let off_grid: Option<Vec<Photon>> = grids.multiscale.as_ref().map(|g| {
+            photons
+                .iter()
+                .zip(&photon_triangles)
+                .step_by(settings.gather_stride.max(1))
+                .filter(|(p, &t)| settings.gathered(p.depth()) && g.texture_of(t).is_none())
+                .map(|(p, _)| *p)
+                .collect()
+        });
         let all = PhotonMap::build(gathered, settings.gather_neighbours, scene.surface_area(), max_radius);
-        let cache = IrradianceCache::build(
-            &all,
-            settings.gather_neighbours,
-            settings.gather_stride,
-            scene.surface_area(),
-        );
+        let cache = match off_grid {
+            Some(sites) => IrradianceCache::build_at(&all, &sites, settings.gather_neighbours, scene.surface_area()),
+            None => IrradianceCache::build(
+                &all,
+                settings.gather_neighbours,
+                settings.gather_stride,
+                scene.surface_area(),
+            ),
+        };
         times.irradiance += phase.finish();
         cache
     });
     let (photons, photon_triangles) = shown_photons(settings, photons, photon_triangles);
-    if needs.grids || needs.multiscale {
+    if needs.grids {
         let phase = progress.phase("grids", 0);
         let _s = tracing::info_span!("grids", pass).entered();
-        grids.add(scene, accel, settings, &photons, &photon_triangles);
+        grids.add_paper(scene, settings, &photons, &photon_triangles);
         times.grids += phase.finish();
     }
     drop(photon_triangles);

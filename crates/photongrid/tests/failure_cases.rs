@@ -423,7 +423,7 @@ fn grazing_sun(report: &mut Report) {
             &all,
         );
         let noise = r.pixel.unwrap().1;
-        if noise > [0.15, 0.08, 0.15][m] {
+        if noise > [0.15, 0.08, 0.15, 0.15][m] {
             report.fail(format!(
                 "grazing sun: {} pixel noise {:.1} % too high",
                 spec.name,
@@ -714,38 +714,82 @@ fn empty_region(report: &mut Report) {
 // ---------------------------------------------------------------------------------------------
 
 /// Biases measured when the thresholds were set (release build, seeds 1–4), per case and
-/// metric, for knn k=100, knn k=500 and adaptive k=100 (METHODS order), in the metric's unit
+/// metric, for knn k=100, knn k=500, adaptive k=100 and multiscale (METHODS order), in the metric's unit
 /// (fractions for "%", cm for widths and reach). A bias may grow to 1.5 × this plus a floor of
 /// 2 % (1 cm), at least 3 σ across seeds; see `Report::check_measured`. Re-measure with
 /// `PHOTONGRID_PRINT_BASELINE=1 cargo test --release --test failure_cases -- --nocapture`.
-const BASELINE: &[(&str, &str, [f64; 3])] = &[
-    ("shadow edge", "10–90 % width", [9.3474, 21.2577, 9.1717]),
-    ("shadow edge", "shadow band 0–10 cm: leak", [0.1858, 0.2675, 0.1859]),
+const BASELINE: &[(&str, &str, [f64; 4])] = &[
+    ("shadow edge", "10–90 % width", [9.3490, 21.2591, 9.1731, 5.0246]),
+    (
+        "shadow edge",
+        "shadow band 0–10 cm: leak",
+        [0.1857, 0.2674, 0.1857, 0.0650],
+    ),
     (
         "shadow edge",
         "lit band 0–10 cm: rel. error",
-        [-0.0881, -0.2470, -0.0812],
+        [-0.0884, -0.2473, -0.0814, -0.1288],
     ),
-    ("shadow edge", "lit band 20–50 cm: rel. error", [0.0010, 0.0060, 0.0020]),
-    ("corner", "0–2 cm from wall: rel. error", [-0.2633, -0.3787, -0.2390]),
-    ("corner", "2–6 cm from wall: rel. error", [0.0102, -0.1406, 0.0137]),
-    ("corner", "6–15 cm from wall: rel. error", [0.0103, 0.0103, 0.0098]),
-    ("corner", "25–50 cm from wall: rel. error", [-0.0108, -0.0135, -0.0103]),
+    (
+        "shadow edge",
+        "lit band 20–50 cm: rel. error",
+        [0.0007, 0.0056, 0.0008, 0.0105],
+    ),
+    (
+        "corner",
+        "0–2 cm from wall: rel. error",
+        [-0.2636, -0.3790, -0.2408, 0.0731],
+    ),
+    (
+        "corner",
+        "2–6 cm from wall: rel. error",
+        [0.0099, -0.1410, 0.0128, 0.0241],
+    ),
+    (
+        "corner",
+        "6–15 cm from wall: rel. error",
+        [0.0099, 0.0099, 0.0094, 0.0086],
+    ),
+    (
+        "corner",
+        "25–50 cm from wall: rel. error",
+        [-0.0112, -0.0139, -0.0107, -0.0229],
+    ),
     (
         "tiny plane",
         "quad mean radiance: rel. error",
-        [-0.8479, -0.5534, -0.8479],
+        [-0.8480, -0.5535, -0.8480, -0.8480],
     ),
-    ("grazing sun", "region mean: rel. error", [0.0046, 0.0050, 0.0050]),
-    ("caustic", "power within 2 cm: rel. error", [0.0171, 0.0173, 0.0098]),
-    ("caustic", "power within 8 cm: rel. error", [0.0341, 0.0386, 0.0349]),
-    ("empty region", "dark 0–5 cm: leak / lit", [0.1393, 0.2666, 0.1393]),
-    ("empty region", "dark 5–15 cm: leak / lit", [0.0438, 0.1201, 0.0438]),
-    ("empty region", "leak reach", [19.2500, 19.2500, 19.2500]),
+    (
+        "grazing sun",
+        "region mean: rel. error",
+        [0.0028, 0.0031, 0.0028, 0.0017],
+    ),
+    (
+        "caustic",
+        "power within 2 cm: rel. error",
+        [0.0344, 0.0482, 0.0298, 0.0664],
+    ),
+    (
+        "caustic",
+        "power within 8 cm: rel. error",
+        [0.0497, 0.0862, 0.0199, 0.0458],
+    ),
+    (
+        "empty region",
+        "dark 0–5 cm: leak / lit",
+        [0.1393, 0.2665, 0.1393, 0.0172],
+    ),
+    (
+        "empty region",
+        "dark 5–15 cm: leak / lit",
+        [0.0438, 0.1201, 0.0438, 0.0012],
+    ),
+    ("empty region", "leak reach", [19.2500, 19.2500, 19.2500, 5.1875]),
     (
         "empty region",
         "lit 0–5 cm at wall: rel. error",
-        [-0.0751, -0.2106, -0.0602],
+        [-0.0754, -0.2109, -0.0608, -0.1065],
     ),
 ];
 

@@ -221,7 +221,7 @@ pub struct MethodSpec {
 
 /// The three estimators compared: kNN with k = 100 and 500, the paper's adaptive radius with
 /// k = 100.
-pub const METHODS: [MethodSpec; 3] = [
+pub const METHODS: [MethodSpec; 4] = [
     MethodSpec {
         name: "knn k=100",
         method: Method::Knn,
@@ -235,6 +235,11 @@ pub const METHODS: [MethodSpec; 3] = [
     MethodSpec {
         name: "adaptive k=100",
         method: Method::Adaptive,
+        k: 100,
+    },
+    MethodSpec {
+        name: "multiscale",
+        method: Method::Multiscale,
         k: 100,
     },
 ];
@@ -260,7 +265,7 @@ pub fn render_prepared(scene: &Scene, prepared: &Prepared, settings: &Settings) 
     render_camera(scene, prepared, cams[0], settings, &Progress::quiet())
 }
 
-/// Films per method (outer) and seed (inner): one photon map per seed, shared by every method.
+/// Films per method (outer) and seed (inner): one photon pass per seed, shared by every method.
 pub fn render_methods(scene: &Scene, base: &Settings, seeds: &[u64], methods: &[MethodSpec]) -> Vec<Vec<Film>> {
     render_methods_with(scene, base, seeds, methods, &mut |_, _| {})
 }
@@ -278,13 +283,25 @@ pub fn render_methods_with(
         let s = Settings { seed, ..base.clone() };
         let prepared = prepare_adaptive(scene, &s);
         inspect(seed, &prepared);
+        // The multiscale pyramids come from the same seed's photons (the same photons).
+        let multiscale = methods.iter().any(|m| m.method == Method::Multiscale).then(|| {
+            let ms = Settings {
+                method: Method::Multiscale,
+                ..s.clone()
+            };
+            prepare(scene, &ms, &Progress::quiet(), &mut PhaseTimes::default()).unwrap_or_else(|e| panic!("{e}"))
+        });
         for (m, spec) in methods.iter().enumerate() {
             let rs = Settings {
                 method: spec.method,
                 neighbours: spec.k,
                 ..s.clone()
             };
-            let film = render_prepared(scene, &prepared, &rs);
+            let p = match (&multiscale, spec.method) {
+                (Some(ms), Method::Multiscale) => ms,
+                _ => &prepared,
+            };
+            let film = render_prepared(scene, p, &rs);
             assert_eq!(film.nonfinite(), 0, "{}: non-finite pixels", spec.name);
             out[m].push(film);
         }

@@ -4,6 +4,7 @@
 use super::density::irradiance;
 use super::photon_map::{PhotonMap, NORMAL_AGREEMENT};
 use crate::photon::store::{oct_decode, oct_encode};
+use crate::photon::Photon;
 use crate::spatial::{KnnBuffer, PointGrid};
 use crate::Rgb;
 use glam::{Vec2, Vec3};
@@ -40,10 +41,14 @@ pub struct IrradianceCache {
 impl IrradianceCache {
     /// Estimate irradiance with `k` neighbours at every `stride`-th photon of `map`.
     pub fn build(map: &PhotonMap, k: usize, stride: usize, surface_area: f32) -> Self {
-        let photons = map.photons();
-        let points: Vec<IrradiancePoint> = photons
+        let sites: Vec<Photon> = map.photons().iter().step_by(stride.max(1)).copied().collect();
+        Self::build_at(map, &sites, k, surface_area)
+    }
+
+    /// Estimate irradiance with `k` neighbours from `map` at the positions of `sites`.
+    pub fn build_at(map: &PhotonMap, sites: &[Photon], k: usize, surface_area: f32) -> Self {
+        let points: Vec<IrradiancePoint> = sites
             .par_iter()
-            .step_by(stride.max(1))
             .map_init(KnnBuffer::default, |buf, p| {
                 let n = p.normal();
                 let g = map.knn(p.pos(), n, k, buf);

@@ -75,11 +75,32 @@ pub fn choose_scale(
 /// light.
 pub const INTERIOR_COVERAGE: f32 = 0.9;
 
+/// Photons (over all passes) an interior kernel must hold for the photons' indirect estimate
+/// to be used when final gathering could supply it instead: fewer give blotches that cost
+/// more block error than gathering's grain (measured on cornell_glass, docs/multiscale.md).
+const MIN_INDIRECT_PHOTONS: f32 = 64.0;
+
 impl MultiscaleGrids {
     /// One layer's estimate at `p` of the plane texture `tex`.
     pub fn layer_estimate(&self, tex: &[LayerTexture], layer: usize, p: Vec3, gamma: f32) -> Option<LayerEstimate> {
         let floor = self.mean_power[layer] * self.mean_power[layer];
-        choose_scale(tex[layer].scales(p), gamma, floor, self.passes.max(1) as f32)
+        let t = &tex[layer];
+        let within = t
+            .scales(p)
+            .take_while(|s| s.level == 0 || t.kernel_reach(s.level) <= self.max_radius);
+        choose_scale(within, gamma, floor, self.passes.max(1) as f32)
+    }
+
+    /// One layer's estimate at `p` from kernels lying (almost) wholly on the plane: near an
+    /// edge the scale stops before the kernel reaches past it.
+    pub fn interior_estimate(&self, tex: &[LayerTexture], layer: usize, p: Vec3, gamma: f32) -> Option<LayerEstimate> {
+        let floor = self.mean_power[layer] * self.mean_power[layer];
+        let t = &tex[layer];
+        let inside = t
+            .scales(p)
+            .take_while(|s| s.level == 0 || t.kernel_reach(s.level) <= self.max_radius)
+            .take_while(|s| s.texel.area >= INTERIOR_COVERAGE * t.kernel_area(s.level));
+        choose_scale(inside, gamma, floor, self.passes.max(1) as f32)
     }
 
     /// Total irradiance (every layer) at a point on a plane, for final-gather rays; None off
@@ -116,9 +137,17 @@ pub fn gather(grids: &MultiscaleGrids, q: &Query, gamma: f32, direct: bool, gath
             add(&d);
         }
     }
-    let indirect = grids.layer_estimate(tex, INDIRECT, q.position, gamma);
-    let interior = indirect.is_some_and(|i| i.area >= INTERIOR_COVERAGE * tex[INDIRECT].kernel_area(i.level));
-    let needs_gathering = gathering && !interior;
+    let (indirect, needs_gathering) = if gathering {
+        // With final gathering at hand, the photons' indirect estimate is used only where a
+        // kernel on the plane holds enough of them; elsewhere (edges, corners, dim places)
+        // gathering supplies indirect light.
+        let i = grids.interior_estimate(tex, INDIRECT, q.position, gamma);
+        let passes = grids.passes.max(1) as f32;
+        let enough = i.is_some_and(|i| i.count * passes >= MIN_INDIRECT_PHOTONS);
+        (i.filter(|_| enough), !enough)
+    } else {
+        (grids.layer_estimate(tex, INDIRECT, q.position, gamma), false)
+    };
     if !needs_gathering {
         if let Some(i) = &indirect {
             add(i);

@@ -152,6 +152,13 @@ impl LayerTexture {
         self.plane.cell_area() * (1u64 << (2 * level)) as f32
     }
 
+    /// How far from its point a kernel at `level` can reach: bilinear weights over texels of
+    /// 2^level cells span one and a half texels each way.
+    pub fn kernel_reach(&self, level: usize) -> f32 {
+        let cell = (self.plane.size_u / self.plane.res_u as f32).max(self.plane.size_v / self.plane.res_v as f32);
+        1.5 * cell * (1u64 << level) as f32
+    }
+
     /// Kernel sums at `p` on every level, finest first.
     pub fn scales(&self, p: Vec3) -> impl Iterator<Item = ScaleEstimate> + '_ {
         let (gx, gy) = self.plane.grid_coords(p);
@@ -216,6 +223,8 @@ pub struct MultiscaleParams {
     pub photons_per_cell: f32,
     /// Most cells along a plane's longer side.
     pub max_resolution: usize,
+    /// The widest kernel's radius (m), as for every other gather (`Settings::max_radius`).
+    pub max_radius: f32,
 }
 
 impl Default for MultiscaleParams {
@@ -224,6 +233,7 @@ impl Default for MultiscaleParams {
             cell_budget: 4 << 20,
             photons_per_cell: 2.0,
             max_resolution: 2048,
+            max_radius: f32::INFINITY,
         }
     }
 }
@@ -240,6 +250,32 @@ pub struct MultiscaleGrids {
     /// Mean photon power (luminance) per layer over the photons counted, per pass: the
     /// variance floor of an empty kernel (one photon's worth of uncertainty).
     pub mean_power: [f32; LAYERS],
+    /// The farthest a kernel may reach from its point (m): scales stop below it.
+    pub max_radius: f32,
+}
+
+/// Per fine cell of `plane`: a photon landed in it or in one of its eight neighbours.
+fn lit_cells(plane: &Plane, landed: &[Vec3]) -> Vec<bool> {
+    let (w, h) = (plane.res_u, plane.res_v);
+    let mut hit = vec![false; w * h];
+    for &x in landed {
+        if let Some(c) = plane.cell_of(x, f32::INFINITY) {
+            hit[c] = true;
+        }
+    }
+    let mut lit = vec![false; w * h];
+    for j in 0..h {
+        for i in 0..w {
+            if hit[j * w + i] {
+                for y in j.saturating_sub(1)..(j + 2).min(h) {
+                    for x in i.saturating_sub(1)..(i + 2).min(w) {
+                        lit[y * w + x] = true;
+                    }
+                }
+            }
+        }
+    }
+    lit
 }
 
 impl MultiscaleGrids {
@@ -256,17 +292,28 @@ impl MultiscaleGrids {
         buried: &(dyn Fn(Vec3, Vec3) -> bool + Sync),
     ) -> Self {
         let dims = fine_resolutions(&set, photons, triangles, params);
+        // Where photons land, nothing rests on the plane: they veto the buried test, whose
+        // rays can be fooled by open or one-sided meshes.
+        let mut landed: Vec<Vec<Vec3>> = vec![Vec::new(); set.planes.len()];
+        for (p, &t) in photons.iter().zip(triangles) {
+            let plane = set.plane_of_triangle.get(t as usize).copied().unwrap_or(NO_PLANE);
+            if plane != NO_PLANE {
+                landed[plane as usize].push(p.pos());
+            }
+        }
         let textures: Vec<[LayerTexture; LAYERS]> = set
             .planes
             .par_iter()
             .zip(&dims)
-            .map(|(p, layer_dims)| {
+            .zip(&landed)
+            .map(|((p, layer_dims), landed)| {
                 std::array::from_fn(|l| {
                     let (ru, rv) = layer_dims[l];
                     let plane = p.clone().with_resolution(ru, rv);
                     let mut area = coverage(&plane, tris);
+                    let lit = lit_cells(&plane, landed);
                     for (cell, a) in area.iter_mut().enumerate() {
-                        if *a > 0.0 && buried(plane.cell_center(cell), plane.normal) {
+                        if *a > 0.0 && !lit[cell] && buried(plane.cell_center(cell), plane.normal) {
                             *a = 0.0;
                         }
                     }
@@ -279,6 +326,7 @@ impl MultiscaleGrids {
             textures,
             passes: 0,
             mean_power: [0.0; LAYERS],
+            max_radius: params.max_radius,
         };
         g.add(photons, triangles);
         g
