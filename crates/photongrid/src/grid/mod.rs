@@ -3,6 +3,7 @@
 //! receivers; from the counts follows the assumed radius of METHOD.md eq. (3).
 
 pub mod multiscale;
+mod noise;
 pub mod planes;
 pub mod textures;
 pub mod voxels;
