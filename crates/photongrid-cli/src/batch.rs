@@ -200,7 +200,10 @@ fn read_regular(path: &Path, max: u64) -> std::io::Result<Vec<u8>> {
     let mut bytes = Vec::new();
     f.take(max + 1).read_to_end(&mut bytes)?;
     if bytes.len() as u64 > max {
-        return Err(std::io::Error::new(std::io::ErrorKind::InvalidData, "larger than expected"));
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            "larger than expected",
+        ));
     }
     Ok(bytes)
 }
@@ -373,7 +376,13 @@ fn scene_stem(p: &Path) -> String {
 pub fn safe_component(s: &str) -> String {
     let t: String = s
         .chars()
-        .map(|c| if c == '/' || c == '\\' || c.is_control() { '_' } else { c })
+        .map(|c| {
+            if c == '/' || c == '\\' || c.is_control() {
+                '_'
+            } else {
+                c
+            }
+        })
         .collect();
     if t.is_empty() {
         "_".into()

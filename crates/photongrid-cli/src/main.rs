@@ -520,11 +520,18 @@ fn render(a: RenderArgs) -> Result<()> {
 /// scene (however spelt, through links too), none the same file as another, and no camera
 /// selected twice. Without `cameras` (before the scene is loaded) the paths are checked as
 /// given, those with `{camera}` left for later.
-fn plan_outputs(a: &RenderArgs, cameras: Option<&[&photongrid::scene::Camera]>) -> Result<Vec<(PathBuf, Option<PathBuf>)>> {
+fn plan_outputs(
+    a: &RenderArgs,
+    cameras: Option<&[&photongrid::scene::Camera]>,
+) -> Result<Vec<(PathBuf, Option<PathBuf>)>> {
     let mut plan = output::OutputPlan::new();
     plan.input("the scene", &a.scene);
     let Some(cameras) = cameras else {
-        for (what, p) in [("--output", Some(&a.output)), ("--png", a.png.as_ref()), ("--stats", a.stats.as_ref())] {
+        for (what, p) in [
+            ("--output", Some(&a.output)),
+            ("--png", a.png.as_ref()),
+            ("--stats", a.stats.as_ref()),
+        ] {
             if let Some(p) = p.filter(|p| !p.to_string_lossy().contains("{camera}")) {
                 plan.output(what, p)?;
             }

@@ -267,7 +267,10 @@ pub fn estimate_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) 
     if needs.grids && settings.grid != crate::settings::GridMode::None {
         let cells = (settings.grid_res as u64).saturating_pow(2);
         add(
-            format!("plane grids (at least one plane of --grid-res {}² cells)", settings.grid_res),
+            format!(
+                "plane grids (at least one plane of --grid-res {}² cells)",
+                settings.grid_res
+            ),
             cells.saturating_mul(BYTES_PER_GRID_CELL),
             "lower --grid-res",
         );

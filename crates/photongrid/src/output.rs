@@ -398,9 +398,7 @@ impl OutputPlan {
             path: path.to_path_buf(),
             message,
         };
-        let name_ok = path
-            .file_name()
-            .is_some_and(|n| !n.is_empty() && n != "." && n != "..");
+        let name_ok = path.file_name().is_some_and(|n| !n.is_empty() && n != "." && n != "..");
         if !name_ok || path.as_os_str().to_string_lossy().ends_with('/') {
             return Err(refuse(format!("{what} is not a file name")));
         }
@@ -425,9 +423,11 @@ impl OutputPlan {
                 )));
             }
         }
-        let clash = self.by_resolved.get(&res).copied().or_else(|| {
-            id.and_then(|id| self.outputs.iter().position(|(_, _, _, other)| *other == Some(id)))
-        });
+        let clash = self
+            .by_resolved
+            .get(&res)
+            .copied()
+            .or_else(|| id.and_then(|id| self.outputs.iter().position(|(_, _, _, other)| *other == Some(id))));
         if let Some(i) = clash {
             let (other, given, _, _) = &self.outputs[i];
             let same = if given == path {
@@ -499,7 +499,11 @@ pub fn write_exr(path: &Path, film: &Film, aovs: AovSelection) -> Result<(), Out
 
 /// Write a 2D field (a plane's count texture) as a one-channel `Y` EXR, atomically.
 pub fn write_field_exr(path: &Path, field: &crate::grid::wavelet::Field2) -> Result<(), OutputError> {
-    let data = field.data.iter().map(|v| if v.is_finite() { *v } else { 0.0 }).collect();
+    let data = field
+        .data
+        .iter()
+        .map(|v| if v.is_finite() { *v } else { 0.0 })
+        .collect();
     let ch = AnyChannel::new("Y", FlatSamples::F32(data));
     let layer = Layer::new(
         (field.width, field.height),
@@ -584,6 +588,93 @@ mod tests {
         assert!(names.contains(&"albedo.R".to_string()) && names.contains(&"depth.Z".to_string()));
         // No temporary file left behind.
         assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn non_finite_values_are_written_as_zero() {
+        let mut film = Film::new(3, 1);
+        film.color[0] = Rgb::new(f32::NAN, 1.0, 2.0);
+        film.color[1] = Rgb::new(f32::INFINITY, f32::NEG_INFINITY, 0.5);
+        film.color[2] = Rgb::new(1.0, 1.0, 1.0);
+        assert_eq!(film.nonfinite(), 2);
+        // The stats' mean stays a number (non-finite values count as 0, as written).
+        assert_eq!(film.mean(), [1.0 / 3.0, 2.0 / 3.0, 3.5 / 3.0]);
+        let p = std::env::temp_dir().join(format!("pg-nonfinite-{}.exr", std::process::id()));
+        write_exr(&p, &film, AovSelection::all()).unwrap();
+        let image = exr::prelude::read_all_flat_layers_from_file(&p).unwrap();
+        std::fs::remove_file(&p).unwrap();
+        for c in &image.layer_data[0].channel_data.list {
+            if let FlatSamples::F32(v) = &c.sample_data {
+                assert!(v.iter().all(|x| x.is_finite()), "{}: {v:?}", c.name);
+            }
+        }
+    }
+
+    #[test]
+    fn temporary_names_are_recognised_only_in_our_pattern() {
+        assert_eq!(
+            temp_writer(".a.exr.12-0123abcd.0123456789abcdef.tmp", "a.exr"),
+            Some(Some((12, "0123abcd".to_string())))
+        );
+        assert_eq!(temp_writer(".a.exr.12.tmp", "a.exr"), Some(None));
+        for other in [
+            ".a.exr.tmp",
+            ".b.exr.12.tmp",
+            "a.exr.12.tmp",
+            ".a.exr.12-0123abcd.xyz.tmp",
+            ".a.exr.x12.tmp",
+        ] {
+            assert_eq!(temp_writer(other, "a.exr"), None, "{other}");
+        }
+    }
+
+    #[test]
+    fn stale_temporary_files_of_dead_writers_are_removed() {
+        let dir = std::env::temp_dir().join(format!("pg-stale-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let out = dir.join("a.exr");
+        // Above Linux's largest pid (2^22): no such process.
+        let dead = dir.join(format!(".a.exr.4194999-{}.0123456789abcdef.tmp", host_tag()));
+        let mine = dir.join(format!(
+            ".a.exr.{}-{}.0123456789abcdef.tmp",
+            std::process::id(),
+            host_tag()
+        ));
+        let other_host = dir.join(".a.exr.4194999-00000000.0123456789abcdef.tmp");
+        for p in [&dead, &mine, &other_host] {
+            std::fs::write(p, b"x").unwrap();
+        }
+        if host_tag() != "00000000" {
+            assert_eq!(clean_stale_temps(&out), 1);
+            assert!(!dead.exists() && mine.exists() && other_host.exists());
+        }
+        // The write itself leaves nothing but the output (and the files it must not touch).
+        write_atomic(&out, b"new").unwrap();
+        assert_eq!(std::fs::read(&out).unwrap(), b"new");
+        let left = std::fs::read_dir(&dir).unwrap().count();
+        assert_eq!(left, 3);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn plan_refuses_inputs_and_duplicates_by_where_they_lead() {
+        let dir = std::env::temp_dir().join(format!("pg-plan-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("sub")).unwrap();
+        let scene = dir.join("s.glb");
+        std::fs::write(&scene, b"glb").unwrap();
+        let hard = dir.join("hard.glb");
+        std::fs::hard_link(&scene, &hard).unwrap();
+        let mut plan = OutputPlan::new();
+        plan.input("the scene", &scene);
+        let msg = |r: Result<(), OutputError>| r.unwrap_err().to_string();
+        assert!(msg(plan.output("--output", &hard)).contains("is the scene"));
+        assert!(msg(plan.output("--output", &dir.join("sub/../s.glb"))).contains("is the scene"));
+        plan.output("--output", &dir.join("a.exr")).unwrap();
+        assert!(msg(plan.output("--png", &dir.join("sub/../a.exr"))).contains("same file as --output"));
+        assert!(msg(plan.output("--png", &dir.join("none/x.png"))).contains("does not exist"));
+        assert!(msg(plan.output("--png", &dir.join("sub"))).contains("a folder"));
+        plan.output("--png", &dir.join("sub/a.exr")).unwrap();
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

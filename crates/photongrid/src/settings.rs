@@ -462,7 +462,9 @@ mod bytes {
             None => Ok(None),
             Some(Size::Number(0)) => Err(serde::de::Error::custom("a memory limit must be more than 0 bytes")),
             Some(Size::Number(n)) => Ok(Some(n)),
-            Some(Size::Text(s)) => crate::memory::parse_bytes(&s).map(Some).map_err(serde::de::Error::custom),
+            Some(Size::Text(s)) => crate::memory::parse_bytes(&s)
+                .map(Some)
+                .map_err(serde::de::Error::custom),
         }
     }
 }

@@ -44,7 +44,11 @@ pub const OFFSET_REL_SCENE: f32 = 1e-6;
 /// most `magnitude` in absolute value, in a scene of diagonal `scene_diagonal`. Both terms
 /// scale with the scene: a scene rendered at 10⁻⁷ or 10⁹ times its size gets the same image.
 pub fn offset_eps(magnitude: f32, scene_diagonal: f32) -> f32 {
-    let d = if scene_diagonal.is_finite() { scene_diagonal } else { 0.0 };
+    let d = if scene_diagonal.is_finite() {
+        scene_diagonal
+    } else {
+        0.0
+    };
     magnitude * OFFSET_REL_POSITION + d * OFFSET_REL_SCENE
 }
 
@@ -77,7 +81,10 @@ impl SurfacePoint {
             (1.0 / 3.0, 1.0 / 3.0)
         };
         let position = tri.p[0] + e1 * b1 + e2 * b2;
-        let magnitude = tri.p.iter().fold(position.abs().max_element(), |m, p| m.max(p.abs().max_element()));
+        let magnitude = tri
+            .p
+            .iter()
+            .fold(position.abs().max_element(), |m, p| m.max(p.abs().max_element()));
         let ng = e1.cross(e2).normalize();
         let backface = dir.dot(ng) > 0.0;
         let facing = if backface { -ng } else { ng };
