@@ -387,3 +387,48 @@ fn batch_outputs_that_clash_or_replace_inputs_fail_their_unit() {
     assert!(r.code != Some(0) && r.stderr.contains("the jobs file"), "{}", r.stderr);
     assert_eq!(std::fs::read(&jobs).unwrap(), jobs_text);
 }
+
+#[test]
+fn batch_cameras_that_do_not_fit_together_render_in_turns() {
+    let dir = TempDir::new("batch-chunks");
+    let mut g = hostile_base();
+    let c = g.camera(Camera::Perspective {
+        yfov: 0.7,
+        aspect: Some(4.0 / 3.0),
+    });
+    g.root(Node {
+        name: Some("Cam2".into()),
+        transform: Transform::translation([0.5, 1.5, 5.0]),
+        camera: Some(c),
+        ..Default::default()
+    });
+    let p = g.write_glb(dir.path(), "scene.glb");
+    // 400×300: one camera's images take about 20 MB, both together about 32 MB.
+    let jobs = dir.join("jobs.toml");
+    let text = format!(
+        "[defaults]\nwidth = 400\nheight = 300\nphotons = 1000\nspp = 1\nmemory_limit = \"26M\"\n\
+         [[job]]\nscene = \"{}\"\noutput = \"out/{{camera}}.exr\"\n",
+        s(&p)
+    );
+    std::fs::write(&jobs, text).unwrap();
+    let report = dir.join("report.json");
+    let r = run(&dir, &["batch", s(&jobs), "--report", s(&report)]);
+    assert_ok(&r);
+    let v: Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let units = v["units"].as_array().unwrap();
+    assert_eq!(units.len(), 2, "{v}");
+    for u in units {
+        assert_eq!(u["status"], "done", "{u}");
+        // Each camera rendered on its own (its own photons), not refused.
+        assert_eq!(u["stats"]["photon_map_shared_by"], 1, "{u}");
+    }
+    assert!(dir.join("out/Camera.exr").is_file() && dir.join("out/Cam2.exr").is_file());
+    // With room for both, they share one photon map.
+    std::fs::write(&jobs, std::fs::read_to_string(&jobs).unwrap().replace("26M", "1G")).unwrap();
+    let r = run(&dir, &["batch", s(&jobs), "--report", s(&report), "--force"]);
+    assert_ok(&r);
+    let v: Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    for u in v["units"].as_array().unwrap() {
+        assert_eq!(u["stats"]["photon_map_shared_by"], 2, "{u}");
+    }
+}
