@@ -160,6 +160,54 @@ pub fn fnv1a64(bytes: &[u8]) -> u64 {
     h
 }
 
+/// Length and [`fnv1a64`] of a regular file, read in blocks (never held whole).
+fn fnv1a64_file(path: &Path) -> std::io::Result<(u64, u64)> {
+    use std::io::Read;
+    let mut f = open_regular(path)?;
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut len = 0u64;
+    let mut buf = vec![0u8; 1 << 16];
+    loop {
+        let n = f.read(&mut buf)?;
+        if n == 0 {
+            return Ok((len, h));
+        }
+        len += n as u64;
+        for &b in &buf[..n] {
+            h ^= b as u64;
+            h = h.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+}
+
+/// Open `path` for reading if it is a regular file (after links): a FIFO or device is never
+/// opened (it could block or never end).
+fn open_regular(path: &Path) -> std::io::Result<std::fs::File> {
+    let meta = std::fs::metadata(path)?;
+    if !meta.is_file() {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "not a regular file",
+        ));
+    }
+    std::fs::File::open(path)
+}
+
+/// The bytes of a regular file of at most `max` bytes.
+fn read_regular(path: &Path, max: u64) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
+    let f = open_regular(path)?;
+    let mut bytes = Vec::new();
+    f.take(max + 1).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > max {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            "larger than expected",
+        ));
+    }
+    Ok(bytes)
+}
+
 /// `I/N` with 0 ≤ I < N.
 pub fn parse_shard(s: &str) -> Result<(usize, usize), String> {
     let err = || format!("--shard {s}: expected I/N with 0 <= I < N, e.g. 0/4");
@@ -313,19 +361,64 @@ fn tidy(p: &Path) -> PathBuf {
     out.iter().collect()
 }
 
+/// `{scene}`: the scene file's stem, made a safe file-name part ([`safe_component`]).
 fn scene_stem(p: &Path) -> String {
-    p.file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "scene".into())
+    safe_component(
+        &p.file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "scene".into()),
+    )
+}
+
+/// `s` made safe to substitute into an output path: separators and control characters become
+/// `_`, and a name of dots only (`.`, `..` — a scene file named `...glb` has the stem `..`)
+/// has its dots made `_`, so no substitution can leave the folder the pattern names.
+pub fn safe_component(s: &str) -> String {
+    let t: String = s
+        .chars()
+        .map(|c| {
+            if c == '/' || c == '\\' || c.is_control() {
+                '_'
+            } else {
+                c
+            }
+        })
+        .collect();
+    if t.is_empty() {
+        "_".into()
+    } else if t.chars().all(|c| c == '.') {
+        t.replace('.', "_")
+    } else {
+        t
+    }
+}
+
+/// What expansion keeps of a scene: a scene holding only its cameras (the triangles, materials
+/// and textures are dropped as soon as the cameras are known), and the file's hash.
+struct Summary {
+    cameras: Scene,
+    file: Value,
+}
+
+/// Where an output or sidecar is, and whose it is.
+struct Claim {
+    unit: usize,
+    job: usize,
+    what: &'static str,
 }
 
 /// Expand jobs into units in a stable order: job order, then camera order. A job that cannot
 /// be expanded (bad table, missing scene, unknown camera, clashing output) becomes one failed
 /// unit carrying its error, so it is reported and counted in exactly one shard.
+///
+/// Scenes are loaded one at a time and dropped once their cameras are known, so memory stays
+/// that of one scene however many the file names. Outputs and their sidecars are compared by
+/// where they lead (relative or absolute spelling, links and `..` resolved), so two spellings
+/// of one file clash; an output that is one of the scenes fails its unit.
 pub fn expand(jobs: &[Result<Job, JobError>]) -> Vec<Unit> {
-    let mut scenes: HashMap<PathBuf, Result<(Scene, Value), String>> = HashMap::new();
+    let mut scenes: HashMap<PathBuf, Result<Summary, String>> = HashMap::new();
     let mut units: Vec<Unit> = Vec::new();
-    let mut outputs: HashMap<PathBuf, (usize, usize)> = HashMap::new();
+    let mut claims: HashMap<PathBuf, Claim> = HashMap::new();
     for job in jobs {
         let job = match job {
             Ok(j) => j,
@@ -344,9 +437,9 @@ pub fn expand(jobs: &[Result<Job, JobError>]) -> Vec<Unit> {
         };
         let loaded = scenes
             .entry(job.scene.clone())
-            .or_insert_with(|| load_for_expansion(&job.scene));
+            .or_insert_with(|| load_for_expansion(&job.scene, job.settings.memory_limit));
         let (scene, file) = match loaded {
-            Ok(s) => (&s.0, &s.1),
+            Ok(s) => (&s.cameras, &s.file),
             Err(e) => {
                 units.push(fail(&units, e.clone()));
                 continue;
@@ -364,24 +457,37 @@ pub fn expand(jobs: &[Result<Job, JobError>]) -> Vec<Unit> {
             .output
             .replace("{scene}", &scene_stem(&job.scene))
             .replace("{job}", &job.index.to_string());
-        let mut mine = Vec::new();
+        let mut mine: Vec<(&photongrid::scene::Camera, PathBuf)> = Vec::new();
+        let mut mine_by: HashMap<PathBuf, usize> = HashMap::new();
         let mut clash = None;
         for c in &cameras {
             let out = output_for(Path::new(&pattern), &c.name, several);
-            if let Some((u, j)) = outputs.get(&out) {
+            let at = output::resolved(&out, false);
+            let side = output::resolved(&sidecar_path(&out), false);
+            if let Some(&i) = mine_by.get(&at) {
+                let other = mine[i].0;
+                clash = Some(if other.index == c.index {
+                    format!("camera {} '{}' is listed twice in `camera`", c.index, c.name)
+                } else {
+                    format!(
+                        "cameras {} '{}' and {} '{}' both write {} (their names make the same file name); put {{camera}} in `output` or select one of them",
+                        other.index,
+                        other.name,
+                        c.index,
+                        c.name,
+                        out.display()
+                    )
+                });
+                break;
+            }
+            if let Some(Claim { unit, job, what }) = claims.get(&at).or_else(|| claims.get(&side)) {
                 clash = Some(format!(
-                    "output {} is also the output of unit {u} (job {j}); use {{camera}} or {{scene}} in `output`",
+                    "output {} is also the {what} of unit {unit} (job {job}); use {{camera}} or {{scene}} in `output`",
                     out.display()
                 ));
                 break;
             }
-            if mine.iter().any(|(_, o)| o == &out) {
-                clash = Some(format!(
-                    "two cameras write {}; use {{camera}} in `output`",
-                    out.display()
-                ));
-                break;
-            }
+            mine_by.insert(at, mine.len());
             mine.push((c, out));
         }
         if let Some(m) = clash {
@@ -391,7 +497,21 @@ pub fn expand(jobs: &[Result<Job, JobError>]) -> Vec<Unit> {
         for (c, out) in mine {
             let (w, h) = pipeline::resolution(c, &job.settings);
             let index = units.len();
-            outputs.insert(out.clone(), (index, job.index));
+            for (path, what) in [(out.clone(), "output"), (sidecar_path(&out), "sidecar")] {
+                claims.insert(
+                    output::resolved(&path, false),
+                    Claim {
+                        unit: index,
+                        job: job.index,
+                        what,
+                    },
+                );
+            }
+            // The memory limit changes nothing in the image: it is not part of the key.
+            let key_settings = Settings {
+                memory_limit: None,
+                ..job.settings.clone()
+            };
             units.push(Unit {
                 index,
                 job: job.index,
@@ -409,13 +529,59 @@ pub fn expand(jobs: &[Result<Job, JobError>]) -> Vec<Unit> {
                     "scene_file": file,
                     "camera": c.name, "camera_index": c.index,
                     "width": w, "height": h,
-                    "settings": job.settings,
+                    "settings": key_settings,
                     "aovs": job.aovs,
                 }),
             });
         }
     }
+    let scene_paths: Vec<(String, PathBuf)> = jobs
+        .iter()
+        .filter_map(|j| j.as_ref().ok())
+        .map(|j| (format!("the scene of job {}", j.index), j.scene.clone()))
+        .collect();
+    protect(&mut units, &scene_paths);
     units
+}
+
+/// Fail every unit whose output or sidecar would replace one of `inputs` (`(what, path)`: the
+/// scenes, the jobs file, the report, the journal), however the paths are spelt.
+pub fn protect(units: &mut [Unit], inputs: &[(String, PathBuf)]) {
+    let mut by: HashMap<PathBuf, (&str, &Path)> = HashMap::new();
+    for (what, path) in inputs {
+        for follow in [false, true] {
+            by.entry(output::resolved(path, follow))
+                .or_insert((what.as_str(), path.as_path()));
+        }
+    }
+    let ids: HashMap<(u64, u64), (&str, &Path)> = inputs
+        .iter()
+        .filter_map(|(what, path)| file_id(path).map(|id| (id, (what.as_str(), path.as_path()))))
+        .collect();
+    for u in units.iter_mut().filter(|u| u.error.is_none()) {
+        let Some(out) = u.output.clone() else { continue };
+        for (path, what) in [(out.clone(), "output"), (sidecar_path(&out), "sidecar")] {
+            let hit = by
+                .get(&output::resolved(&path, false))
+                .or_else(|| file_id(&path).and_then(|id| ids.get(&id)));
+            if let Some((input, given)) = hit {
+                u.error = Some(format!(
+                    "job {} ({}): the {what} {} is {input} ({}): writing it would replace an input; change `output`",
+                    u.job,
+                    u.scene.display(),
+                    path.display(),
+                    given.display()
+                ));
+                break;
+            }
+        }
+    }
+}
+
+/// Device and inode of the file `path` leads to, if it exists.
+fn file_id(path: &Path) -> Option<(u64, u64)> {
+    use std::os::unix::fs::MetadataExt;
+    std::fs::metadata(path).ok().map(|m| (m.dev(), m.ino()))
 }
 
 fn failed_unit(index: usize, job: usize, scene: Option<PathBuf>, error: String) -> Unit {
@@ -435,18 +601,30 @@ fn failed_unit(index: usize, job: usize, scene: Option<PathBuf>, error: String) 
     }
 }
 
-fn load_for_expansion(path: &Path) -> Result<(Scene, Value), String> {
-    let bytes = std::fs::read(path).map_err(|e| {
-        if e.kind() == std::io::ErrorKind::NotFound {
-            format!("scene file {} does not exist", path.display())
-        } else {
-            format!("{}: cannot read: {e}", path.display())
-        }
-    })?;
-    let file = json!({"bytes": bytes.len(), "fnv64": format!("{:016x}", fnv1a64(&bytes))});
-    drop(bytes);
-    let scene = load_with(path, &LoadOptions::default()).map_err(|e| e.to_string())?;
-    Ok((scene, file))
+fn load_for_expansion(path: &Path, memory_limit: Option<u64>) -> Result<Summary, String> {
+    if !path.exists() {
+        return Err(format!("scene file {} does not exist", path.display()));
+    }
+    // The loader first: it refuses what is not a regular file, or too large, before reading.
+    let options = LoadOptions {
+        memory_budget_bytes: memory_limit,
+        ..LoadOptions::default()
+    };
+    let scene = load_with(path, &options).map_err(|e| e.to_string())?;
+    let (len, hash) = fnv1a64_file(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
+    let file = json!({"bytes": len, "fnv64": format!("{hash:016x}")});
+    // Keep the cameras only: the rest of the scene is dropped here.
+    let cameras = Scene {
+        source: scene.source,
+        cameras: scene.cameras,
+        triangles: Vec::new(),
+        materials: Vec::new(),
+        textures: Vec::new(),
+        lights: Vec::new(),
+        bounds: photongrid::scene::Bounds::empty(),
+        report: Default::default(),
+    };
+    Ok(Summary { cameras, file })
 }
 
 /// Keep the units of shard `i` of `n`: those whose index % n == i.
@@ -465,12 +643,13 @@ pub fn sidecar_path(output: &Path) -> PathBuf {
 pub fn check_done(u: &Unit) -> Result<(), String> {
     let out = u.output.as_deref().ok_or("no output")?;
     let side = sidecar_path(out);
-    let text = std::fs::read_to_string(&side).map_err(|_| "no sidecar".to_string())?;
-    let v: Value = serde_json::from_str(&text).map_err(|e| format!("{}: unreadable: {e}", side.display()))?;
+    let text = read_regular(&side, 64 << 20).map_err(|_| "no sidecar".to_string())?;
+    let v: Value = serde_json::from_slice(&text).map_err(|e| format!("{}: unreadable: {e}", side.display()))?;
     if v["key"].as_str() != Some(u.key().as_str()) {
         return Err("scene, camera or settings changed".into());
     }
-    let bytes = std::fs::read(out).map_err(|e| format!("{}: {e}", out.display()))?;
+    let expected = v["exr"]["bytes"].as_u64().unwrap_or(0);
+    let bytes = read_regular(out, expected).map_err(|e| format!("{}: {e}", out.display()))?;
     if v["exr"]["bytes"].as_u64() != Some(bytes.len() as u64)
         || v["exr"]["fnv64"].as_str() != Some(format!("{:016x}", fnv1a64(&bytes)).as_str())
     {
@@ -633,8 +812,9 @@ fn run_group(group: &[&Unit], pool: &rayon::ThreadPool, opts: &RunOptions) -> Ve
             fail_all(&todo, format!("internal error (panic): {m}"), start)
         }
     };
+    let by_index: HashMap<usize, &Unit> = todo.iter().map(|u| (u.index, *u)).collect();
     for r in &rendered {
-        let u = todo.iter().find(|u| u.index == r.index).expect("unit of this group");
+        let u = by_index[&r.index];
         match r.status {
             Status::Done => journal(opts, "done", u, json!({"seconds": r.seconds})),
             _ => journal(opts, "failed", u, json!({"error": r.error})),
@@ -663,43 +843,78 @@ fn fail_all(units: &[&Unit], e: String, start: Instant) -> Vec<UnitReport> {
 }
 
 /// Load once and run the passes for every camera of the group together (each pass's photons
-/// serve all of them). An error here fails the whole group;
-/// an error writing one output fails that unit only.
+/// serve all of them), in as few renders as the memory limit allows: when the cameras' images
+/// do not fit together ([`photongrid::memory`]), they are rendered in consecutive chunks that
+/// do, each with its own photons. An error loading the scene fails the whole group; an error
+/// rendering a chunk fails that chunk's units; an error writing one output fails that unit only.
 fn render_group(units: &[&Unit], _opts: &RunOptions) -> Result<Vec<UnitReport>, String> {
     let first = units[0];
     let settings = &first.settings;
-    let progress = Progress::quiet();
     let t = Instant::now();
-    let scene = load_with(&first.scene, &LoadOptions::default()).map_err(|e| e.to_string())?;
+    let options = LoadOptions {
+        memory_budget_bytes: settings.memory_limit,
+        ..LoadOptions::default()
+    };
+    let scene = load_with(&first.scene, &options).map_err(|e| e.to_string())?;
     let load_seconds = t.elapsed().as_secs_f64();
     // Units whose camera is missing fail alone; the others share every pass's photons.
     let mut reports = Vec::new();
+    let by_index: HashMap<usize, &photongrid::scene::Camera> = scene.cameras.iter().map(|c| (c.index, c)).collect();
     let mut ok: Vec<(&Unit, &photongrid::scene::Camera)> = Vec::new();
     for &u in units {
-        match u
-            .camera
-            .as_deref()
-            .ok_or_else(|| "no camera".to_string())
-            .and_then(|n| scene.camera(n))
-        {
+        let camera = match (u.camera_index.and_then(|i| by_index.get(&i)), u.camera.as_deref()) {
+            (Some(c), Some(name)) if c.name == name => Ok(*c),
+            (_, Some(name)) => scene.camera(name),
+            (_, None) => Err("no camera".to_string()),
+        };
+        match camera {
             Ok(c) => ok.push((u, c)),
             Err(e) => reports.push(UnitReport::of(u, Status::Failed, Some(e), 0.0, None)),
         }
     }
-    if ok.is_empty() {
-        return Ok(reports);
+    let mut rest = &ok[..];
+    while !rest.is_empty() {
+        let cameras: Vec<&photongrid::scene::Camera> = rest.iter().map(|(_, c)| *c).collect();
+        let n = photongrid::memory::cameras_that_fit(&scene, &cameras, settings).clamp(1, rest.len());
+        if n < rest.len() && rest.len() == ok.len() {
+            tracing::info!(
+                "{}: {} cameras do not fit in memory together; rendering them {n} at a time",
+                first.scene.display(),
+                ok.len()
+            );
+        }
+        let (chunk, more) = rest.split_at(n);
+        let tc = Instant::now();
+        match render_chunk(&scene, chunk, settings, load_seconds) {
+            Ok(r) => reports.extend(r),
+            Err(e) => reports.extend(fail_all(&chunk.iter().map(|(u, _)| *u).collect::<Vec<_>>(), e, tc)),
+        }
+        rest = more;
     }
-    let cameras: Vec<&photongrid::scene::Camera> = ok.iter().map(|(_, c)| *c).collect();
+    Ok(reports)
+}
+
+/// Render `chunk`'s cameras together and write each unit's EXR and sidecar.
+fn render_chunk(
+    scene: &Scene,
+    chunk: &[(&Unit, &photongrid::scene::Camera)],
+    settings: &Settings,
+    load_seconds: f64,
+) -> Result<Vec<UnitReport>, String> {
+    let progress = Progress::quiet();
+    let t = Instant::now();
+    let cameras: Vec<&photongrid::scene::Camera> = chunk.iter().map(|(_, c)| *c).collect();
     let request = RenderRequest {
-        scene: &scene,
+        scene,
         cameras: &cameras,
         settings,
         start: t,
     };
     let rendered = pipeline::render(&request, &progress, None).map_err(|e| e.to_string())?;
-    // Time before the writes (load, photons, all passes) is split between the units.
+    // Time before the writes (photons, all passes) is split between the units.
     let shared = t.elapsed().as_secs_f64();
-    for (((u, _), film), camera) in ok.iter().zip(&rendered.films).zip(&rendered.report.cameras) {
+    let mut reports = Vec::new();
+    for (((u, _), film), camera) in chunk.iter().zip(&rendered.films).zip(&rendered.report.cameras) {
         let tw = Instant::now();
         let result_unit = (|| -> Result<Value, String> {
             let out = u.output.as_deref().ok_or("no output")?;
@@ -712,8 +927,18 @@ fn render_group(units: &[&Unit], _opts: &RunOptions) -> Result<Vec<UnitReport>, 
             } else {
                 AovSelection::default()
             };
+            // Refuse a folder, device or FIFO at the output (or its sidecar) before encoding.
+            output::check_output_kind(out).map_err(|e| e.to_string())?;
+            output::check_output_kind(&sidecar_path(out)).map_err(|e| e.to_string())?;
             let bytes = output::encode_exr(film, aovs).map_err(|m| format!("{}: EXR error: {m}", out.display()))?;
             output::write_atomic(out, &bytes).map_err(|e| e.to_string())?;
+            if camera.nonfinite_pixels > 0 {
+                tracing::warn!(
+                    "{}: {} pixels were not finite (NaN or infinite) and were written as 0",
+                    out.display(),
+                    camera.nonfinite_pixels
+                );
+            }
             // The unit's report: the render's, with this camera only and its own write time.
             let mut report = rendered.report.clone();
             report.seconds.load = load_seconds;
@@ -723,7 +948,7 @@ fn render_group(units: &[&Unit], _opts: &RunOptions) -> Result<Vec<UnitReport>, 
                 ..camera.clone()
             }];
             let mut stats = serde_json::to_value(&report).map_err(|e| e.to_string())?;
-            stats["photon_map_shared_by"] = json!(ok.len());
+            stats["photon_map_shared_by"] = json!(chunk.len());
             let side = json!({
                 "key": u.key(),
                 "key_source": u.key_source,
@@ -736,7 +961,7 @@ fn render_group(units: &[&Unit], _opts: &RunOptions) -> Result<Vec<UnitReport>, 
             output::write_atomic(&sidecar_path(out), &side_bytes).map_err(|e| e.to_string())?;
             Ok(stats)
         })();
-        let own = tw.elapsed().as_secs_f64() + shared / ok.len() as f64;
+        let own = tw.elapsed().as_secs_f64() + shared / chunk.len() as f64;
         reports.push(match result_unit {
             Ok(stats) => UnitReport::of(u, Status::Done, None, own, Some(stats)),
             Err(e) => UnitReport::of(u, Status::Failed, Some(e), own, None),

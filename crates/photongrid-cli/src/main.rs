@@ -335,24 +335,6 @@ fn bench(a: BenchArgs) -> Result<()> {
     Ok(())
 }
 
-fn check_writable(path: &Path) -> Result<()> {
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    if !dir.is_dir() {
-        bail!(
-            "{}: the folder {} does not exist; create it first",
-            path.display(),
-            dir.display()
-        );
-    }
-    if path.is_dir() {
-        bail!("{}: is a folder, not a file name", path.display());
-    }
-    Ok(())
-}
-
 /// The settings' defaults, or their schema derived from the same clap arguments `render`
 /// takes (so front ends never copy names, defaults or choices).
 fn settings_command(schema: bool) -> Result<()> {
@@ -429,6 +411,7 @@ fn render(a: RenderArgs) -> Result<()> {
     set_threads(a.threads)?;
     let settings = &a.settings;
     settings.validate().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
+    plan_outputs(&a, None)?;
     let display = Display::new(a.progress);
     let progress = Progress::new(&display);
 
@@ -437,7 +420,7 @@ fn render(a: RenderArgs) -> Result<()> {
         &a.scene,
         &LoadOptions {
             allow_external_uris: a.allow_external_uris,
-            ..Default::default()
+            memory_budget_bytes: settings.memory_limit,
         },
     )?;
     let load_seconds = phase.finish();
@@ -448,25 +431,7 @@ fn render(a: RenderArgs) -> Result<()> {
     if a.cameras.is_empty() {
         cameras.truncate(1);
     }
-    let several = cameras.len() > 1;
-    let outputs: Vec<(PathBuf, Option<PathBuf>)> = cameras
-        .iter()
-        .map(|c| {
-            (
-                output_for(&a.output, &c.name, several),
-                a.png.as_ref().map(|p| output_for(p, &c.name, several)),
-            )
-        })
-        .collect();
-    for (o, p) in &outputs {
-        check_writable(o)?;
-        if let Some(p) = p {
-            check_writable(p)?;
-        }
-    }
-    if let Some(s) = &a.stats {
-        check_writable(s)?;
-    }
+    let outputs = plan_outputs(&a, Some(&cameras))?;
 
     let aovs = if a.aovs {
         AovSelection::all()
@@ -514,7 +479,11 @@ fn render(a: RenderArgs) -> Result<()> {
         }
         report.seconds.write += t.elapsed().as_secs_f64();
         if camera.nonfinite_pixels > 0 {
-            tracing::warn!("{}: {} pixels are not finite", out.display(), camera.nonfinite_pixels);
+            tracing::warn!(
+                "{}: {} pixels were not finite (NaN or infinite) and were written as 0",
+                out.display(),
+                camera.nonfinite_pixels
+            );
         }
         camera.output = Some(out.clone());
         camera.png = png.clone();
@@ -546,6 +515,62 @@ fn render(a: RenderArgs) -> Result<()> {
     Ok(())
 }
 
+/// The files `render` writes — per camera the EXR and the PNG, and the stats — checked before
+/// any work (issue 12): each a regular-file path in an existing folder, none of them the
+/// scene (however spelt, through links too), none the same file as another, and no camera
+/// selected twice. Without `cameras` (before the scene is loaded) the paths are checked as
+/// given, those with `{camera}` left for later.
+fn plan_outputs(
+    a: &RenderArgs,
+    cameras: Option<&[&photongrid::scene::Camera]>,
+) -> Result<Vec<(PathBuf, Option<PathBuf>)>> {
+    let mut plan = output::OutputPlan::new();
+    plan.input("the scene", &a.scene);
+    let Some(cameras) = cameras else {
+        for (what, p) in [
+            ("--output", Some(&a.output)),
+            ("--png", a.png.as_ref()),
+            ("--stats", a.stats.as_ref()),
+        ] {
+            if let Some(p) = p.filter(|p| !p.to_string_lossy().contains("{camera}")) {
+                plan.output(what, p)?;
+            }
+        }
+        return Ok(Vec::new());
+    };
+    let mut seen = std::collections::HashMap::new();
+    for c in cameras {
+        if let Some(first) = seen.insert(c.index, c.name.as_str()) {
+            bail!(
+                "camera {} '{first}' is selected twice by --camera; select each camera once",
+                c.index
+            );
+        }
+    }
+    let several = cameras.len() > 1;
+    let of = |flag: &str, c: &photongrid::scene::Camera| {
+        if several {
+            format!("{flag} of camera {} '{}'", c.index, c.name)
+        } else {
+            flag.to_string()
+        }
+    };
+    let mut outputs = Vec::new();
+    for c in cameras {
+        let exr = output_for(&a.output, &c.name, several);
+        plan.output(of("--output", c), &exr)?;
+        let png = a.png.as_ref().map(|p| output_for(p, &c.name, several));
+        if let Some(p) = &png {
+            plan.output(of("--png", c), p)?;
+        }
+        outputs.push((exr, png));
+    }
+    if let Some(s) = &a.stats {
+        plan.output("--stats", s)?;
+    }
+    Ok(outputs)
+}
+
 fn batch(a: BatchArgs) -> Result<()> {
     use photongrid_cli::batch;
     let start = Instant::now();
@@ -570,6 +595,7 @@ fn batch(a: BatchArgs) -> Result<()> {
         .unwrap_or(Path::new("."));
     let jobs = batch::parse_jobs(&text, base).map_err(|e| anyhow::anyhow!("{}: {e}", a.jobs_file.display()))?;
     let mut units = batch::expand(&jobs);
+    batch_refusals(&a, &mut units)?;
     let all = units.len();
     if let Some(&i) = a.only.iter().find(|&&i| i >= all) {
         bail!("--only {i}: {} has {all} units (0..{all})", a.jobs_file.display());
@@ -589,7 +615,6 @@ fn batch(a: BatchArgs) -> Result<()> {
         return Ok(());
     }
     let report_path = a.report.as_deref().context("--report is required")?;
-    check_writable(report_path)?;
     let mut opts = batch::RunOptions {
         jobs: a.jobs,
         force: a.force,
@@ -643,6 +668,26 @@ fn batch(a: BatchArgs) -> Result<()> {
         }
         bail!("{} of {} units failed", failed.len(), reports.len());
     }
+    Ok(())
+}
+
+/// The files a batch reads and writes besides the units' outputs, checked before any work:
+/// the report and the journal must be regular-file paths in existing folders, neither the
+/// jobs file nor each other; a unit whose output or sidecar would replace the jobs file, the
+/// report or the journal fails (the scenes are protected by `batch::expand` itself).
+fn batch_refusals(a: &BatchArgs, units: &mut [photongrid_cli::batch::Unit]) -> Result<()> {
+    let mut plan = output::OutputPlan::new();
+    plan.input("the jobs file", &a.jobs_file);
+    let mut inputs = vec![("the jobs file".to_string(), a.jobs_file.clone())];
+    if let Some(r) = &a.report {
+        plan.output("--report", r)?;
+        inputs.push(("the report".into(), r.clone()));
+    }
+    if let Some(j) = &a.journal {
+        plan.output("--journal", j)?;
+        inputs.push(("the journal".into(), j.clone()));
+    }
+    photongrid_cli::batch::protect(units, &inputs);
     Ok(())
 }
 

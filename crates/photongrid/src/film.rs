@@ -44,12 +44,15 @@ impl Film {
     }
 
     /// Mean of the colour channels over all pixels, summed in f64 (no overflow to infinity for
-    /// very bright images).
+    /// very bright images). A non-finite value counts as 0, as the image writers write it
+    /// ([`crate::output::encode_exr`]), so the mean is always a finite number.
     pub fn mean(&self) -> [f64; 3] {
         let mut s = [0.0f64; 3];
         for c in &self.color {
             for (a, v) in s.iter_mut().zip(c.to_array()) {
-                *a += v as f64;
+                if v.is_finite() {
+                    *a += v as f64;
+                }
             }
         }
         s.map(|v| v / self.color.len().max(1) as f64)

@@ -14,6 +14,7 @@ pub mod bsdf;
 pub mod estimate;
 pub mod film;
 pub mod grid;
+pub mod memory;
 pub mod output;
 pub mod photon;
 pub mod pipeline;

@@ -41,6 +41,9 @@ pub enum RenderError {
         /// A count that fits.
         suggest: usize,
     },
+    /// The render's memory estimate is over the limit ([`crate::memory`]).
+    #[error("{0}")]
+    Memory(#[from] crate::memory::MemoryError),
     /// The scene has no camera.
     #[error("{0}: the scene has no camera: export one (Blender: Include > Cameras)")]
     NoCamera(String),
@@ -351,6 +354,7 @@ pub fn render(
     } = *request;
     settings.validate()?;
     check_photon_memory(settings.photons, caustic_photons(scene, settings))?;
+    crate::memory::check_render(scene, cameras, settings)?;
     let mut report = RenderReport {
         scene: scene.source.clone(),
         version: env!("CARGO_PKG_VERSION").to_string(),
@@ -527,7 +531,7 @@ impl GridState {
 /// edge of two triangles, where cell centres often lie, can slip between them) and towards
 /// the front (so they do not cross the surface).
 fn inside_solid(scene: &Scene, accel: &Accel, p: glam::Vec3, n: glam::Vec3) -> bool {
-    let eps = 1e-4 * (1.0 + p.abs().max_element());
+    let eps = crate::surface::offset_eps(p.abs().max_element(), scene.bounds.diagonal());
     let (u, v) = crate::sampling::basis(n);
     [n].iter().any(|&side| {
         let o = p + side * eps;

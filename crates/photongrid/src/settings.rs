@@ -130,6 +130,13 @@ pub struct Settings {
     #[cfg_attr(feature = "cli", arg(long, visible_alias = "time-budget", value_name = "SECONDS", value_parser = parse_seconds, help_heading = "Passes and time"))]
     #[serde(skip_serializing_if = "Option::is_none", alias = "time_budget")]
     pub time: Option<f64>,
+
+    /// Memory limit of a render (8G, 512M, 16GiB or bytes; default half of the RAM): a render
+    /// whose estimate (images, per-sample state, photons, grids) is larger is refused up front,
+    /// with the estimate and what to change. Also the scene loader's budget.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "BYTES", value_parser = crate::memory::parse_bytes, help_heading = "Passes and time"))]
+    #[serde(skip_serializing_if = "Option::is_none", deserialize_with = "bytes::deserialize")]
+    pub memory_limit: Option<u64>,
 }
 
 /// Where direct illumination comes from.
@@ -257,6 +264,7 @@ impl Default for Settings {
             gather_stride: 4,
             passes: None,
             time: None,
+            memory_limit: None,
         }
     }
 }
@@ -434,6 +442,29 @@ mod count {
         match Count::deserialize(d)? {
             Count::Number(n) => Ok(n),
             Count::Text(s) => super::parse_count(&s).map_err(serde::de::Error::custom),
+        }
+    }
+}
+
+/// Sizes in jobs files: a number of bytes, or a string `parse_bytes` reads (`"8G"`).
+mod bytes {
+    use serde::{Deserialize, Deserializer};
+
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum Size {
+        Number(u64),
+        Text(String),
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<u64>, D::Error> {
+        match Option::<Size>::deserialize(d)? {
+            None => Ok(None),
+            Some(Size::Number(0)) => Err(serde::de::Error::custom("a memory limit must be more than 0 bytes")),
+            Some(Size::Number(n)) => Ok(Some(n)),
+            Some(Size::Text(s)) => crate::memory::parse_bytes(&s)
+                .map(Some)
+                .map_err(serde::de::Error::custom),
         }
     }
 }

@@ -25,6 +25,41 @@ pub struct SurfacePoint {
     pub material: u32,
     /// Triangle index.
     pub triangle: u32,
+    /// How far ray origins leaving this point are moved off the surface ([`offset_eps`] of
+    /// the largest coordinate of the point and its triangle's vertices).
+    pub eps: f32,
+}
+
+/// Ray-origin offsets relative to the float precision of a point: a 32-bit float carries 24
+/// bits, and a hit position computed from a triangle's vertices — and the BVH's own
+/// intersection test of that triangle — err by a few units in the last place of the largest
+/// coordinate involved. 2⁻¹⁶ of it (256 units in the last place) clears that with a wide
+/// margin, at any distance from the origin and any scene scale.
+pub const OFFSET_REL_POSITION: f32 = 1.0 / 65536.0;
+/// Floor of the offsets relative to the scene: 10⁻⁶ of its bounding-box diagonal (for points
+/// near the origin, where the precision term vanishes).
+pub const OFFSET_REL_SCENE: f32 = 1e-6;
+
+/// The offset off a surface for a point whose coordinates (and its triangle's vertices') are at
+/// most `magnitude` in absolute value, in a scene of diagonal `scene_diagonal`. Both terms
+/// scale with the scene: a scene rendered at 10⁻⁷ or 10⁹ times its size gets the same image.
+pub fn offset_eps(magnitude: f32, scene_diagonal: f32) -> f32 {
+    let d = if scene_diagonal.is_finite() {
+        scene_diagonal
+    } else {
+        0.0
+    };
+    magnitude * OFFSET_REL_POSITION + d * OFFSET_REL_SCENE
+}
+
+/// Where a shadow ray from a point of coordinates at most `magnitude` (already moved off its
+/// surface by [`SurfacePoint::offset`]) must stop before a light `distance` away, so as not to
+/// hit the surface the light lies on: the segment is shortened by the offset at the light's end.
+pub fn shadow_tmax(magnitude: f32, distance: f32, scene_diagonal: f32) -> f32 {
+    if !distance.is_finite() {
+        return f32::INFINITY;
+    }
+    (distance - offset_eps(magnitude + distance, scene_diagonal)).max(0.0)
 }
 
 impl SurfacePoint {
@@ -46,6 +81,10 @@ impl SurfacePoint {
             (1.0 / 3.0, 1.0 / 3.0)
         };
         let position = tri.p[0] + e1 * b1 + e2 * b2;
+        let magnitude = tri
+            .p
+            .iter()
+            .fold(position.abs().max_element(), |m, p| m.max(p.abs().max_element()));
         let ng = e1.cross(e2).normalize();
         let backface = dir.dot(ng) > 0.0;
         let facing = if backface { -ng } else { ng };
@@ -65,6 +104,7 @@ impl SurfacePoint {
             uv: tri.lerp(tri.uv, b1, b2),
             material: tri.material,
             triangle: hit.triangle,
+            eps: offset_eps(magnitude, scene.bounds.diagonal()),
         }
     }
 
@@ -79,14 +119,19 @@ impl SurfacePoint {
         }
     }
 
-    /// A start point for a ray leaving in `dir`, nudged off the surface to the side `dir` goes.
+    /// A start point for a ray leaving in `dir`, nudged off the surface to the side `dir` goes
+    /// by [`SurfacePoint::eps`] (relative to the point's float precision and the scene's size).
     pub fn offset(&self, dir: Vec3) -> Vec3 {
-        let eps = 1e-4 * (1.0 + self.position.abs().max_element());
         let n = if dir.dot(self.geometric_normal) >= 0.0 {
             self.geometric_normal
         } else {
             -self.geometric_normal
         };
-        self.position + n * eps
+        self.position + n * self.eps
+    }
+
+    /// The largest coordinate of this point in absolute value (for [`shadow_tmax`]).
+    pub fn magnitude(&self) -> f32 {
+        self.position.abs().max_element()
     }
 }

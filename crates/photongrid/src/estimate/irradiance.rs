@@ -62,7 +62,7 @@ impl IrradianceCache {
             })
             .collect();
         let n = points.len().max(1);
-        let cell = crate::spatial::suggest_cell_size(n, surface_area.max(1e-6), 8).min(map.max_radius);
+        let cell = crate::spatial::suggest_cell_size(n, surface_area.max(f32::MIN_POSITIVE), 8).min(map.max_radius);
         IrradianceCache {
             grid: PointGrid::build(points, cell),
             max_radius: map.max_radius,

@@ -16,7 +16,7 @@ pub const NORMAL_AGREEMENT: f32 = 0.6;
 fn cell_size_for(photons: &[Photon], k: usize, surface_area: f32) -> f32 {
     use crate::spatial::suggest_cell_size;
     let n = photons.len().max(1);
-    let mut cell = suggest_cell_size(n, surface_area.max(1e-6), k.max(1));
+    let mut cell = suggest_cell_size(n, surface_area.max(f32::MIN_POSITIVE), k.max(1));
     let stride = (n / 1_000_000).max(1);
     for _ in 0..2 {
         let occupied: std::collections::HashSet<[i32; 3]> = photons
@@ -26,7 +26,7 @@ fn cell_size_for(photons: &[Photon], k: usize, surface_area: f32) -> f32 {
             .collect();
         // Occupied cells bound the covered area; a surface crosses a cell over about cell² · 1.5.
         let covered = occupied.len() as f32 * cell * cell * 1.5;
-        let c = suggest_cell_size(n, covered.min(surface_area.max(1e-6)), k.max(1));
+        let c = suggest_cell_size(n, covered.min(surface_area.max(f32::MIN_POSITIVE)), k.max(1));
         if (c - cell).abs() < 0.1 * cell {
             break;
         }
@@ -60,7 +60,7 @@ pub struct PhotonMap {
 impl PhotonMap {
     /// Index `photons` with cells sized for `k` neighbours on `surface_area` m².
     pub fn build(photons: Vec<Photon>, k: usize, surface_area: f32, max_radius: f32) -> Self {
-        let cell = cell_size_for(&photons, k, surface_area).min(max_radius.max(1e-6));
+        let cell = cell_size_for(&photons, k, surface_area).min(max_radius.max(f32::MIN_POSITIVE));
         PhotonMap {
             grid: PointGrid::build(photons, cell),
             max_radius,

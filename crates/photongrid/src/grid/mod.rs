@@ -118,7 +118,7 @@ impl Grids {
             .filter(|(_, r)| **r)
             .map(|(t, _)| t.area())
             .sum::<f32>()
-            .max(1e-12);
+            .max(f32::MIN_POSITIVE);
         let plane_set = matches!(mode, GridMode::Auto | GridMode::Planes)
             .then(|| PlaneGrids::detect_receivers(scene, params.resolution));
         let mut on_plane = vec![false; scene.triangles.len()];

@@ -152,7 +152,7 @@ impl SpecularTargets {
                 Some(Emission {
                     origin,
                     direction: *direction,
-                    flux: *irradiance / pdf.max(1e-30),
+                    flux: *irradiance / pdf.max(f32::MIN_POSITIVE),
                 })
             }
             Light::Emissive { triangles, cdf } => {
@@ -169,7 +169,7 @@ impl SpecularTargets {
                 // Radiance × |cosθ| / (p(tri) · p(point) · p(direction)).
                 let flux = tri.radiance * (cos.abs() * tri.area / (p_tri.max(1e-30) * pdf));
                 Some(Emission {
-                    origin: origin + d * 1e-5,
+                    origin: tri.leave(origin, d),
                     direction: d,
                     flux,
                 })

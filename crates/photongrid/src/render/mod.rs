@@ -269,11 +269,7 @@ impl Tracer<'_> {
                     continue;
                 }
                 let origin = sp.offset(inc.wi);
-                let tmax = if inc.distance.is_finite() {
-                    (inc.distance * (1.0 - 1e-4) - 1e-4).max(0.0)
-                } else {
-                    f32::INFINITY
-                };
+                let tmax = crate::surface::shadow_tmax(sp.magnitude(), inc.distance, self.scene.bounds.diagonal());
                 if !self.accel.occluded(origin, inc.wi, tmax) {
                     sum += inc.irradiance * cos;
                 }

@@ -46,6 +46,17 @@ impl EmitterTriangle {
         let (b1, b2) = sampling::uniform_triangle(u);
         self.p0 + self.e1 * b1 + self.e2 * b2
     }
+
+    /// `p` (a point of the triangle) moved off it to the side `dir` leaves by, so that a photon
+    /// leaving there does not hit its own emitter ([`crate::surface::offset_eps`] of the
+    /// triangle's coordinates).
+    pub fn leave(&self, p: Vec3, dir: Vec3) -> Vec3 {
+        let m = [self.p0, self.p0 + self.e1, self.p0 + self.e2]
+            .iter()
+            .fold(p.abs().max_element(), |m, v| m.max(v.abs().max_element()));
+        let side = if dir.dot(self.normal) >= 0.0 { 1.0 } else { -1.0 };
+        p + self.normal * (side * crate::surface::offset_eps(m, 0.0))
+    }
 }
 
 /// A light source in world space, in radiometric units (see [`units`]).
@@ -247,9 +258,10 @@ impl Light {
                     n = -n;
                 }
                 let origin = t.point(rng.uniform2());
+                let direction = sampling::cosine_hemisphere(rng.uniform2(), n);
                 Emission {
-                    origin,
-                    direction: sampling::cosine_hemisphere(rng.uniform2(), n),
+                    origin: t.leave(origin, direction),
+                    direction,
                     flux: t.power() / pdf.max(1e-30),
                 }
             }

@@ -155,7 +155,7 @@ impl Loader<'_> {
                     direction,
                     irradiance: color * units::lux_to_irradiance(kind.intensity),
                     scene_center: bounds.center(),
-                    scene_radius: 0.5 * bounds.diagonal().max(1e-3),
+                    scene_radius: 0.5 * bounds.diagonal().max(f32::MIN_POSITIVE),
                 }
             }
         })

@@ -247,7 +247,10 @@ impl Loader<'_> {
                     ),
                 ));
             }
-            if !(len > 1e-14) {
+            // Zero area, or below the float noise of its edges' cross product (relative, so
+            // that a scene at 1e-7 m keeps its triangles; never above the old 1e-14 m²).
+            let noise = ((p[1] - p[0]).length() * (p[2] - p[0]).length() * f32::EPSILON).min(1e-14);
+            if !(len > noise) {
                 self.report.degenerate_triangles += 1;
                 continue;
             }

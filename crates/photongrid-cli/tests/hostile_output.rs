@@ -1,0 +1,434 @@
+//! The output side of issue 12, with the real binary: outputs never replace an input, each
+//! other or a special file; temporary files are created exclusively and stale ones removed;
+//! batch substitutions cannot leave the output folder; renders that cannot fit in memory are
+//! refused up front with what to change.
+
+use photongrid_testkit::*;
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+struct Run {
+    code: Option<i32>,
+    stdout: String,
+    stderr: String,
+}
+
+/// Run the binary with `args`, output into files (a chatty child cannot block), killed after
+/// 120 s so that a hang (a FIFO opened for writing) fails the test instead of stalling it.
+fn run(dir: &TempDir, args: &[&str]) -> Run {
+    static N: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let n = N.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let out_path = dir.join(&format!("stdout-{n}.txt"));
+    let err_path = dir.join(&format!("stderr-{n}.txt"));
+    let start = Instant::now();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_photongrid"))
+        .args(args)
+        .env_remove("RUST_LOG")
+        .env("RUST_BACKTRACE", "0")
+        .stdin(Stdio::null())
+        .stdout(std::fs::File::create(&out_path).unwrap())
+        .stderr(std::fs::File::create(&err_path).unwrap())
+        .spawn()
+        .expect("start photongrid");
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if start.elapsed() > Duration::from_secs(120) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("photongrid {args:?} did not finish within 120 s");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    Run {
+        code: status.code(),
+        stdout: std::fs::read_to_string(&out_path).unwrap_or_default(),
+        stderr: std::fs::read_to_string(&err_path).unwrap_or_default(),
+    }
+}
+
+/// `render <scene>` at tiny settings plus `extra` (which must give the outputs).
+fn render(dir: &TempDir, scene: &Path, extra: &[&str]) -> Run {
+    let mut args = vec!["render", scene.to_str().unwrap()];
+    for (option, value) in [
+        ("--width", "16"),
+        ("--height", "12"),
+        ("--photons", "1000"),
+        ("--spp", "1"),
+    ] {
+        if !extra.contains(&option) {
+            args.extend_from_slice(&[option, value]);
+        }
+    }
+    args.extend_from_slice(extra);
+    run(dir, &args)
+}
+
+#[track_caller]
+fn assert_fails_with(r: &Run, needles: &[&str]) {
+    eprintln!("exit {:?}, stderr: {}", r.code, r.stderr.trim_end());
+    assert!(
+        r.code.is_some() && r.code != Some(0),
+        "expected a clean failure, got {:?}",
+        r.code
+    );
+    assert!(!r.stderr.contains("panicked"), "panicked:\n{}", r.stderr);
+    for n in needles {
+        assert!(r.stderr.contains(n), "stderr lacks {n:?}:\n{}", r.stderr);
+    }
+}
+
+#[track_caller]
+fn assert_ok(r: &Run) {
+    assert_eq!(r.code, Some(0), "stderr:\n{}", r.stderr);
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// The base scene as `scene.glb` in a fresh folder, and its bytes.
+fn scene(tag: &str) -> (TempDir, PathBuf, Vec<u8>) {
+    let dir = TempDir::new(tag);
+    let p = hostile_base().write_glb(dir.path(), "scene.glb");
+    let bytes = std::fs::read(&p).unwrap();
+    (dir, p, bytes)
+}
+
+/// `.tmp` files left in `dir`.
+fn temps(dir: &Path) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".tmp"))
+        .collect()
+}
+
+#[test]
+fn an_output_that_is_the_scene_is_refused_however_spelt() {
+    let (dir, p, bytes) = scene("out-is-scene");
+    let dotted = dir.path().join(".").join("scene.glb");
+    let link = dir.join("link.glb");
+    std::os::unix::fs::symlink(&p, &link).unwrap();
+    let cwd_relative = format!(
+        "{}/../{}/scene.glb",
+        s(dir.path()),
+        dir.path().file_name().unwrap().to_str().unwrap()
+    );
+    for (flag, out) in [
+        ("-o", s(&p)),
+        ("-o", s(&dotted)),
+        ("-o", cwd_relative.as_str()),
+        ("--png", s(&p)),
+        ("--stats", s(&p)),
+    ] {
+        let other = dir.join("x.exr");
+        let mut extra = vec![flag, out];
+        if flag != "-o" {
+            extra.extend_from_slice(&["-o", s(&other)]);
+        }
+        assert_fails_with(&render(&dir, &p, &extra), &["is the scene", "choose another file name"]);
+        assert_eq!(std::fs::read(&p).unwrap(), bytes, "{flag} {out} changed the scene");
+    }
+    // The scene read through a link, written by its real name.
+    assert_fails_with(&render(&dir, &link, &["-o", s(&p)]), &["is the scene"]);
+    assert_eq!(std::fs::read(&p).unwrap(), bytes);
+    assert!(temps(dir.path()).is_empty(), "{:?}", temps(dir.path()));
+}
+
+#[test]
+fn outputs_that_are_the_same_file_are_refused() {
+    let (dir, p, _) = scene("out-same");
+    let out = dir.join("out.exr");
+    std::fs::write(&out, b"old").unwrap();
+    for extra in [
+        vec!["-o", s(&out), "--png", s(&out)],
+        vec!["-o", s(&out), "--stats", s(&out)],
+    ] {
+        assert_fails_with(&render(&dir, &p, &extra), &["is the same file as --output"]);
+        assert_eq!(std::fs::read(&out).unwrap(), b"old");
+    }
+    // One camera twice.
+    assert_fails_with(
+        &render(&dir, &p, &["-o", s(&out), "--camera", "0", "--camera", "0"]),
+        &["selected twice"],
+    );
+    assert_eq!(std::fs::read(&out).unwrap(), b"old");
+}
+
+#[test]
+fn cameras_whose_names_sanitise_alike_are_refused() {
+    let dir = TempDir::new("out-cams");
+    let mut g = hostile_base();
+    for name in ["a b", "a_b"] {
+        let c = g.camera(Camera::Perspective {
+            yfov: 0.7,
+            aspect: Some(4.0 / 3.0),
+        });
+        g.root(Node {
+            name: Some(name.into()),
+            transform: Transform::translation([0.0, 1.5, 5.0]),
+            camera: Some(c),
+            ..Default::default()
+        });
+    }
+    let p = g.write_glb(dir.path(), "scene.glb");
+    let out = dir.join("out_{camera}.exr");
+    let r = render(&dir, &p, &["-o", s(&out), "--camera", "a b", "--camera", "a_b"]);
+    assert_fails_with(&r, &["'a_b'", "is the same file as --output of camera", "'a b'"]);
+    assert!(!dir.join("out_a_b.exr").exists());
+}
+
+#[test]
+fn special_files_are_not_replaced() {
+    let (dir, p, _) = scene("out-special");
+    let folder = dir.join("folder.exr");
+    std::fs::create_dir(&folder).unwrap();
+    assert_fails_with(&render(&dir, &p, &["-o", s(&folder)]), &["folder.exr", "a folder"]);
+    let fifo = dir.join("fifo.exr");
+    let made = Command::new("mkfifo").arg(&fifo).status().unwrap();
+    assert!(made.success());
+    let out = dir.join("out.exr");
+    for extra in [
+        vec!["-o", s(&fifo)],
+        vec!["-o", s(&out), "--png", s(&fifo)],
+        vec!["-o", s(&out), "--stats", s(&fifo)],
+    ] {
+        assert_fails_with(&render(&dir, &p, &extra), &["fifo.exr", "FIFO", "not a regular file"]);
+    }
+    use std::os::unix::fs::FileTypeExt;
+    assert!(std::fs::symlink_metadata(&fifo).unwrap().file_type().is_fifo());
+    assert!(!out.exists(), "nothing is written when an output is refused");
+    let null = Path::new("/dev/null");
+    assert_fails_with(&render(&dir, &p, &["-o", s(&out), "--stats", s(null)]), &["a device"]);
+}
+
+#[test]
+fn temporary_files_are_exclusive_and_stale_ones_removed() {
+    let (dir, p, _) = scene("out-temps");
+    let out = dir.join("out.exr");
+    // Stale temporary files of killed writes (the old name pattern `.<name>.<pid>.tmp`):
+    // one older than an hour is removed, a recent one (maybe a live writer's) is kept.
+    let stale = dir.join(".out.exr.4000001.tmp");
+    std::fs::write(&stale, b"partial").unwrap();
+    let old = std::time::SystemTime::now() - Duration::from_secs(2 * 3600);
+    std::fs::File::options()
+        .write(true)
+        .open(&stale)
+        .unwrap()
+        .set_modified(old)
+        .unwrap();
+    let fresh = dir.join(".out.exr.4000002.tmp");
+    std::fs::write(&fresh, b"live").unwrap();
+    // A planted link at a temporary name: never followed, never removed.
+    let victim = dir.join("victim.txt");
+    std::fs::write(&victim, b"precious").unwrap();
+    let planted = dir.join(".out.exr.4000003.tmp");
+    std::os::unix::fs::symlink(&victim, &planted).unwrap();
+    let old_link = std::fs::File::options().write(true).open(&victim).unwrap();
+    drop(old_link);
+
+    assert_ok(&render(&dir, &p, &["-o", s(&out), "--png", s(&dir.join("out.png"))]));
+    assert!(out.is_file() && dir.join("out.png").is_file());
+    assert!(!stale.exists(), "a stale temporary file was left");
+    assert!(fresh.exists(), "a recent temporary file was removed");
+    assert!(std::fs::symlink_metadata(&planted).unwrap().file_type().is_symlink());
+    assert_eq!(std::fs::read(&victim).unwrap(), b"precious");
+    let mut left = temps(dir.path());
+    left.sort();
+    assert_eq!(left, [".out.exr.4000002.tmp", ".out.exr.4000003.tmp"]);
+
+    // An existing output is replaced whole (a new inode, by rename), and a link at the output
+    // is replaced rather than written through.
+    let link_out = dir.join("linked.exr");
+    std::os::unix::fs::symlink(&victim, &link_out).unwrap();
+    assert_ok(&render(&dir, &p, &["-o", s(&link_out)]));
+    assert_eq!(std::fs::read(&victim).unwrap(), b"precious");
+    assert!(std::fs::symlink_metadata(&link_out).unwrap().is_file());
+}
+
+#[test]
+fn renders_over_the_memory_limit_are_refused_with_what_to_change() {
+    let (dir, p, _) = scene("out-memory");
+    let out = dir.join("out.exr");
+    let r = render(
+        &dir,
+        &p,
+        &[
+            "-o",
+            s(&out),
+            "--width",
+            "8000",
+            "--height",
+            "6000",
+            "--memory-limit",
+            "1G",
+        ],
+    );
+    assert_fails_with(
+        &r,
+        &[
+            "images of 1 camera at 8000×6000",
+            "memory limit of 1.0 GiB",
+            "lower the resolution (--width, --height)",
+            "--memory-limit",
+        ],
+    );
+    // SPPM keeps every camera sample: the estimate says so and names --spp.
+    let r = render(
+        &dir,
+        &p,
+        &[
+            "-o",
+            s(&out),
+            "--method",
+            "sppm",
+            "--spp",
+            "100000",
+            "--width",
+            "160",
+            "--height",
+            "120",
+            "--memory-limit",
+            "4G",
+        ],
+    );
+    assert_fails_with(&r, &["SPPM state", "lower --spp"]);
+    // --spp 4294967295 (the issue's 17 GB) with the limit of this machine or 8 GiB.
+    let r = render(
+        &dir,
+        &p,
+        &["-o", s(&out), "--spp", "4294967295", "--memory-limit", "8G"],
+    );
+    assert_fails_with(&r, &["--spp 4294967295", "lower --spp"]);
+    let r = render(&dir, &p, &["-o", s(&out), "--memory-limit", "lots"]);
+    assert_fails_with(&r, &["--memory-limit", "not a size"]);
+    assert!(!out.exists());
+    // The same render within the limit goes through.
+    assert_ok(&render(&dir, &p, &["-o", s(&out), "--memory-limit", "1G"]));
+    assert!(out.is_file());
+}
+
+/// A jobs file in `dir` over `scene` with outputs `outputs` (one job each).
+fn jobs_file(dir: &Path, scene: &Path, outputs: &[&str]) -> PathBuf {
+    let mut t = String::from("[defaults]\nwidth = 16\nheight = 12\nphotons = 1000\nspp = 1\n");
+    for o in outputs {
+        t += &format!("[[job]]\nscene = \"{}\"\noutput = \"{o}\"\n", s(scene));
+    }
+    let p = dir.join("jobs.toml");
+    std::fs::write(&p, t).unwrap();
+    p
+}
+
+fn list(dir: &TempDir, jobs: &Path) -> Vec<Value> {
+    let r = run(dir, &["batch", s(jobs), "--list"]);
+    assert_ok(&r);
+    r.stdout.lines().map(|l| serde_json::from_str(l).unwrap()).collect()
+}
+
+#[test]
+fn batch_substitutions_stay_in_the_output_folder() {
+    let dir = TempDir::new("batch-dots");
+    // A scene named `...glb` has the stem `..`: `out/{scene}.exr` must stay in `out/`.
+    let p = hostile_base().write_glb(dir.path(), "...glb");
+    std::fs::create_dir(dir.join("out")).unwrap();
+    let jobs = jobs_file(dir.path(), &p, &["out/{scene}/x.exr", "out/{scene}.exr"]);
+    let units = list(&dir, &jobs);
+    assert_eq!(units.len(), 2, "{units:?}");
+    for u in &units {
+        let o = PathBuf::from(u["output"].as_str().expect("an output"));
+        assert!(o.starts_with(dir.join("out")), "{}", o.display());
+        assert!(
+            !o.components().any(|c| c == std::path::Component::ParentDir),
+            "{}",
+            o.display()
+        );
+    }
+}
+
+#[test]
+fn batch_outputs_that_clash_or_replace_inputs_fail_their_unit() {
+    let (dir, p, bytes) = scene("batch-clash");
+    std::fs::create_dir(dir.join("out")).unwrap();
+    let jobs = jobs_file(
+        dir.path(),
+        &p,
+        &[
+            "out/a.exr",
+            "./out/../out/a.exr",  // the same file spelt otherwise
+            "scene.glb",           // the scene
+            "jobs.toml",           // the jobs file
+            "out/b.exr.done.json", // fine alone…
+            "out/b.exr",           // …but its sidecar is the previous unit's output
+        ],
+    );
+    let jobs_text = std::fs::read(&jobs).unwrap();
+    let report = dir.join("report.json");
+    let r = run(&dir, &["batch", s(&jobs), "--report", s(&report)]);
+    assert!(r.code != Some(0) && r.code.is_some(), "{}", r.stderr);
+    assert!(!r.stderr.contains("panicked"), "{}", r.stderr);
+    let v: Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let units = v["units"].as_array().unwrap();
+    let status: Vec<&str> = units.iter().map(|u| u["status"].as_str().unwrap()).collect();
+    assert_eq!(status, ["done", "failed", "failed", "failed", "done", "failed"], "{v}");
+    let error = |i: usize| units[i]["error"].as_str().unwrap_or_default().to_string();
+    assert!(error(1).contains("also the output of unit 0"), "{}", error(1));
+    assert!(error(2).contains("the scene of job"), "{}", error(2));
+    assert!(error(3).contains("the jobs file"), "{}", error(3));
+    assert!(error(5).contains("output of unit"), "{}", error(5));
+    assert_eq!(std::fs::read(&p).unwrap(), bytes);
+    assert_eq!(std::fs::read(&jobs).unwrap(), jobs_text);
+    // The report may not be the jobs file either.
+    let r = run(&dir, &["batch", s(&jobs), "--report", s(&jobs)]);
+    assert!(r.code != Some(0) && r.stderr.contains("the jobs file"), "{}", r.stderr);
+    assert_eq!(std::fs::read(&jobs).unwrap(), jobs_text);
+}
+
+#[test]
+fn batch_cameras_that_do_not_fit_together_render_in_turns() {
+    let dir = TempDir::new("batch-chunks");
+    let mut g = hostile_base();
+    let c = g.camera(Camera::Perspective {
+        yfov: 0.7,
+        aspect: Some(4.0 / 3.0),
+    });
+    g.root(Node {
+        name: Some("Cam2".into()),
+        transform: Transform::translation([0.5, 1.5, 5.0]),
+        camera: Some(c),
+        ..Default::default()
+    });
+    let p = g.write_glb(dir.path(), "scene.glb");
+    // 400×300: one camera's images take about 20 MB, both together about 32 MB.
+    let jobs = dir.join("jobs.toml");
+    let text = format!(
+        "[defaults]\nwidth = 400\nheight = 300\nphotons = 1000\nspp = 1\nmemory_limit = \"26M\"\n\
+         [[job]]\nscene = \"{}\"\noutput = \"out/{{camera}}.exr\"\n",
+        s(&p)
+    );
+    std::fs::write(&jobs, text).unwrap();
+    let report = dir.join("report.json");
+    let r = run(&dir, &["batch", s(&jobs), "--report", s(&report)]);
+    assert_ok(&r);
+    let v: Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let units = v["units"].as_array().unwrap();
+    assert_eq!(units.len(), 2, "{v}");
+    for u in units {
+        assert_eq!(u["status"], "done", "{u}");
+        // Each camera rendered on its own (its own photons), not refused.
+        assert_eq!(u["stats"]["photon_map_shared_by"], 1, "{u}");
+    }
+    assert!(dir.join("out/Camera.exr").is_file() && dir.join("out/Cam2.exr").is_file());
+    // With room for both, they share one photon map.
+    std::fs::write(&jobs, std::fs::read_to_string(&jobs).unwrap().replace("26M", "1G")).unwrap();
+    let r = run(&dir, &["batch", s(&jobs), "--report", s(&report), "--force"]);
+    assert_ok(&r);
+    let v: Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    for u in v["units"].as_array().unwrap() {
+        assert_eq!(u["stats"]["photon_map_shared_by"], 2, "{u}");
+    }
+}

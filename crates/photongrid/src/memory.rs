@@ -1,0 +1,399 @@
+//! The memory of a render, estimated before anything large is allocated, and the limit it is
+//! checked against. [`crate::pipeline::render`] calls [`check_render`] first, so every front
+//! end (command line, batch, bench, add-on) refuses a render that cannot fit with the same
+//! message: the estimate item by item, the limit, and what to change.
+//!
+//! The estimate adds up what stays allocated for the whole render and the largest transient
+//! peak on top of it:
+//! - the scene (triangles, textures) and its BVH;
+//! - per camera, its image across passes: 96 bytes a pixel (sum, AOVs, the final film), or
+//!   with `--method sppm` 20 bytes per camera *sample* (radius, count, flux of each of the
+//!   `spp` samples of each pixel, kept across passes) plus 96 a pixel;
+//! - while one camera renders and is written: its pass film and the encoded image (72 bytes
+//!   a pixel), and each worker thread's sample strata (4 bytes × `spp`);
+//! - one pass's photons: stored photons per emitted path from the scene's mean albedo
+//!   (1 + ρ + ρ² + … up to `max_photon_depth` bounces), about 100 bytes each while traced and
+//!   indexed, 72 more when final gathering indexes all of them again;
+//! - the grids the estimate needs: at least one plane of `grid_res²` cells (16 bytes each),
+//!   or the multiscale pyramids' `grid_cells` (72 bytes each with the coarser levels).
+//!
+//! The limit is [`Settings::memory_limit`] when set, else half of the machine's RAM (the
+//! loader's default budget, `MemTotal` of `/proc/meminfo`), else 8 GiB.
+
+use crate::estimate::Accumulation;
+use crate::scene::{Camera, Scene, Surface, Triangle};
+use crate::settings::Settings;
+
+/// Bytes a pixel of a camera's image costs across passes (accumulated sum 12, AOVs 36, the
+/// final film 48).
+const BYTES_PER_PIXEL: u64 = 96;
+/// Bytes a pixel costs while one camera renders a pass and is written (the pass's film 48,
+/// the channels and encoded bytes of the EXR 24).
+const TRANSIENT_BYTES_PER_PIXEL: u64 = 72;
+/// Bytes per camera sample kept by SPPM (`SppmPixel`: r², N, τ).
+const SPPM_BYTES_PER_SAMPLE: u64 = 20;
+/// Bytes per sample of a pixel's strata, per worker thread.
+const STRATA_BYTES_PER_SAMPLE: u64 = 4;
+/// Bytes per stored photon while a pass traces and indexes it (photon 24, its triangle 4,
+/// the index's items and positions 48, build scratch 24).
+const BYTES_PER_PHOTON: u64 = 100;
+/// More bytes per stored photon when final gathering indexes all photons a second time.
+const GATHER_BYTES_PER_PHOTON: u64 = 72;
+/// Bytes per triangle: the scene's copy and the BVH built over it.
+const BYTES_PER_TRIANGLE: u64 = std::mem::size_of::<Triangle>() as u64 + 200;
+/// Bytes per plane-grid cell (counts, filtered counts, wavelet scratch).
+const BYTES_PER_GRID_CELL: u64 = 16;
+/// Bytes per multiscale finest cell, coarser levels included.
+const BYTES_PER_MULTISCALE_CELL: u64 = 72;
+/// The limit when the RAM cannot be read.
+const FALLBACK_LIMIT: u64 = 8 << 30;
+
+/// One part of the estimate.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Item {
+    /// What it is, with the numbers it comes from.
+    pub what: String,
+    /// Bytes.
+    pub bytes: u64,
+    /// What to change to make it smaller.
+    pub change: String,
+}
+
+/// The memory a render is expected to need, against its limit.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MemoryEstimate {
+    /// The parts, largest first.
+    pub items: Vec<Item>,
+    /// The limit in bytes.
+    pub limit: u64,
+    /// Where the limit comes from, for messages.
+    pub limit_origin: String,
+}
+
+impl MemoryEstimate {
+    /// Sum of the parts (saturating).
+    pub fn total(&self) -> u64 {
+        self.items.iter().fold(0u64, |s, i| s.saturating_add(i.bytes))
+    }
+
+    /// Whether the render fits its limit.
+    pub fn fits(&self) -> bool {
+        self.total() <= self.limit
+    }
+}
+
+/// A render refused because its estimate is over the limit.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("{message}")]
+pub struct MemoryError {
+    /// The estimate.
+    pub needed: u64,
+    /// The limit.
+    pub limit: u64,
+    /// The estimate item by item, the limit and what to change.
+    pub message: String,
+}
+
+/// The memory limit of a render under `settings`, and where it comes from.
+pub fn memory_limit(settings: &Settings) -> (u64, String) {
+    match settings.memory_limit {
+        Some(b) => (b, "set by --memory-limit (jobs files: memory_limit)".to_string()),
+        None => match physical_ram() {
+            Some(ram) => (ram / 2, format!("half of the {} of RAM", human(ram))),
+            None => (FALLBACK_LIMIT, "the default when the RAM size is unknown".to_string()),
+        },
+    }
+}
+
+/// `MemTotal` of `/proc/meminfo`, in bytes.
+fn physical_ram() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemTotal:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    kib.checked_mul(1024)
+}
+
+/// Bytes for people: `3.2 GiB`, `640.0 MiB`, `12.0 KiB`, `100 bytes`.
+pub fn human(bytes: u64) -> String {
+    const UNITS: [(&str, u64); 5] = [
+        ("PiB", 1 << 50),
+        ("TiB", 1 << 40),
+        ("GiB", 1 << 30),
+        ("MiB", 1 << 20),
+        ("KiB", 1 << 10),
+    ];
+    for (unit, size) in UNITS {
+        if bytes >= size {
+            return format!("{:.1} {unit}", bytes as f64 / size as f64);
+        }
+    }
+    format!("{bytes} bytes")
+}
+
+/// Mean diffuse albedo (largest channel) of the scene's surfaces, weighted by area: the share
+/// of a photon's paths that goes on after a diffuse bounce.
+fn mean_albedo(scene: &Scene) -> f64 {
+    let (mut sum, mut area) = (0.0f64, 0.0f64);
+    for t in &scene.triangles {
+        let a = t.area() as f64;
+        if !a.is_finite() {
+            continue;
+        }
+        let rho = match &scene.materials.get(t.material as usize).map(|m| &m.surface) {
+            Some(Surface::Lambert { albedo, .. }) => albedo.max_element().clamp(0.0, 1.0) as f64,
+            // Mirrors and glass pass photons on without storing them.
+            Some(_) => 1.0,
+            None => 0.0,
+        };
+        sum += rho * a;
+        area += a;
+    }
+    if area > 0.0 {
+        (sum / area).clamp(0.0, 0.95)
+    } else {
+        0.5
+    }
+}
+
+/// Estimate the memory of rendering `cameras` of `scene` with `settings` in the current
+/// thread pool (its size sets the per-thread part). Items are sorted largest first.
+pub fn estimate_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) -> MemoryEstimate {
+    let (limit, limit_origin) = memory_limit(settings);
+    let mut items = Vec::new();
+    let mut add = |what: String, bytes: u64, change: &str| {
+        if bytes > 0 {
+            items.push(Item {
+                what,
+                bytes,
+                change: change.to_string(),
+            })
+        }
+    };
+
+    // The scene and its BVH.
+    let texels: u64 = scene
+        .textures
+        .iter()
+        .map(|t| (t.width as u64).saturating_mul(t.height as u64))
+        .sum();
+    let tris = scene.triangles.len() as u64;
+    add(
+        format!("the scene and its BVH ({tris} triangles, {texels} texels)"),
+        tris.saturating_mul(BYTES_PER_TRIANGLE)
+            .saturating_add(texels.saturating_mul(12)),
+        "render a smaller scene",
+    );
+
+    // The cameras' images.
+    let needs = settings.method.needs();
+    let spp = settings.spp.max(1) as u64;
+    let sizes: Vec<(u64, u32, u32)> = cameras
+        .iter()
+        .map(|c| {
+            let (w, h) = crate::pipeline::resolution(c, settings);
+            ((w as u64) * (h as u64), w, h)
+        })
+        .collect();
+    let pixels: u64 = sizes.iter().map(|s| s.0).sum();
+    let largest = sizes.iter().max_by_key(|s| s.0).copied().unwrap_or((0, 0, 0));
+    let several = if cameras.len() == 1 {
+        format!("1 camera at {}×{}", largest.1, largest.2)
+    } else {
+        format!("{} cameras, {} pixels in all", cameras.len(), pixels)
+    };
+    let film_change = if cameras.len() > 1 {
+        "render fewer cameras at once (--camera NAME|INDEX) or at a lower resolution (--width, --height)"
+    } else {
+        "lower the resolution (--width, --height)"
+    };
+    add(
+        format!("images of {several}: {BYTES_PER_PIXEL} bytes a pixel across passes"),
+        pixels.saturating_mul(BYTES_PER_PIXEL),
+        film_change,
+    );
+    if needs.accumulation == Accumulation::PerSample {
+        add(
+            format!("SPPM state of every camera sample ({several} × --spp {spp} × {SPPM_BYTES_PER_SAMPLE} bytes)"),
+            pixels.saturating_mul(spp).saturating_mul(SPPM_BYTES_PER_SAMPLE),
+            "lower --spp (SPPM keeps each sample's radius and flux across passes; add passes with --passes instead) or use another --method",
+        );
+    }
+    add(
+        format!(
+            "one camera's pass and output while it renders and is written ({}×{})",
+            largest.1, largest.2
+        ),
+        largest.0.saturating_mul(TRANSIENT_BYTES_PER_PIXEL),
+        "lower the resolution (--width, --height)",
+    );
+    let threads = rayon::current_num_threads().max(1) as u64;
+    add(
+        format!("camera-sample strata (--spp {spp} × {threads} threads × {STRATA_BYTES_PER_SAMPLE} bytes)"),
+        spp.saturating_mul(threads).saturating_mul(STRATA_BYTES_PER_SAMPLE),
+        "lower --spp (add passes with --passes instead)",
+    );
+
+    // One pass's photons.
+    let caustic = if scene.has_specular() && settings.photons > 0 {
+        settings.caustic_photons as u64
+    } else {
+        0
+    };
+    let rho = mean_albedo(scene);
+    let depth = settings.max_photon_depth.max(1) as i32;
+    let per_path = if rho < 1.0 {
+        (1.0 - rho.powi(depth)) / (1.0 - rho)
+    } else {
+        depth as f64
+    };
+    let gather = settings.effective_gather() > 0;
+    let stored = (settings.photons as f64 * per_path + caustic as f64).min(u64::MAX as f64 / 1024.0) as u64;
+    let per_photon = BYTES_PER_PHOTON + if gather { GATHER_BYTES_PER_PHOTON } else { 0 };
+    add(
+        format!(
+            "one pass's photons (about {stored} stored: {} paths × {per_path:.1} bounces at mean albedo {rho:.2}{}, {per_photon} bytes each)",
+            settings.photons,
+            if caustic > 0 {
+                format!(", plus {caustic} caustic paths")
+            } else {
+                String::new()
+            }
+        ),
+        stored.saturating_mul(per_photon),
+        "lower --photons (and --caustic-photons); add passes with --passes instead",
+    );
+
+    // Grids.
+    if needs.grids && settings.grid != crate::settings::GridMode::None {
+        let cells = (settings.grid_res as u64).saturating_pow(2);
+        add(
+            format!(
+                "plane grids (at least one plane of --grid-res {}² cells)",
+                settings.grid_res
+            ),
+            cells.saturating_mul(BYTES_PER_GRID_CELL),
+            "lower --grid-res",
+        );
+    }
+    if needs.multiscale {
+        add(
+            format!("multiscale grids (--grid-cells {})", settings.grid_cells),
+            (settings.grid_cells as u64).saturating_mul(BYTES_PER_MULTISCALE_CELL),
+            "lower --grid-cells",
+        );
+    }
+    items.sort_by(|a, b| b.bytes.cmp(&a.bytes));
+    MemoryEstimate {
+        items,
+        limit,
+        limit_origin,
+    }
+}
+
+/// How many of `cameras`, from the first, can render together within the limit (at least 1:
+/// a single camera that does not fit is refused by [`check_render`] with its own message).
+pub fn cameras_that_fit(scene: &Scene, cameras: &[&Camera], settings: &Settings) -> usize {
+    if cameras.len() <= 1 || estimate_render(scene, cameras, settings).fits() {
+        return cameras.len();
+    }
+    // The estimate grows with the cameras: bisect.
+    let (mut lo, mut hi) = (1usize, cameras.len());
+    while lo + 1 < hi {
+        let mid = lo + (hi - lo) / 2;
+        if estimate_render(scene, &cameras[..mid], settings).fits() {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    lo
+}
+
+/// Refuse a render whose estimate is over the limit, before anything large is allocated.
+pub fn check_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) -> Result<MemoryEstimate, MemoryError> {
+    let estimate = estimate_render(scene, cameras, settings);
+    if estimate.fits() {
+        tracing::debug!(
+            "memory estimate {} of {} ({})",
+            human(estimate.total()),
+            human(estimate.limit),
+            estimate.limit_origin
+        );
+        return Ok(estimate);
+    }
+    let needed = estimate.total();
+    let parts: Vec<String> = estimate
+        .items
+        .iter()
+        .map(|i| format!("{}: {}", i.what, human(i.bytes)))
+        .collect();
+    let mut change = estimate.items[0].change.clone();
+    if cameras.len() > 1 {
+        let n = cameras_that_fit(scene, cameras, settings);
+        if estimate_render(scene, &cameras[..n], settings).fits() {
+            change = format!("{change}; {n} of the {} cameras fit at once", cameras.len());
+        }
+    }
+    Err(MemoryError {
+        needed,
+        limit: estimate.limit,
+        message: format!(
+            "the render would need about {} ({}), more than the memory limit of {} ({}); {change}, or raise the limit with --memory-limit",
+            human(needed),
+            parts.join("; "),
+            human(estimate.limit),
+            estimate.limit_origin,
+        ),
+    })
+}
+
+/// Bytes from `8G`, `512M`, `1.5GiB`, `300k`, `2e9` or `4096` (units of 1024; `B` and `iB`
+/// optional).
+pub fn parse_bytes(v: &str) -> Result<u64, String> {
+    let t = v.trim().replace('_', "");
+    let lower = t.to_ascii_lowercase();
+    let s = lower.trim_end_matches('b').trim_end_matches('i');
+    let (num, unit) = match s.char_indices().last() {
+        Some((i, 'k')) => (&s[..i], 1u64 << 10),
+        Some((i, 'm')) => (&s[..i], 1 << 20),
+        Some((i, 'g')) => (&s[..i], 1 << 30),
+        Some((i, 't')) => (&s[..i], 1 << 40),
+        _ => (s, 1),
+    };
+    let bad = || format!("`{v}` is not a size: use e.g. 8G, 512M, 16GiB or a number of bytes");
+    let x = num.trim().parse::<f64>().map_err(|_| bad())? * unit as f64;
+    if !(x >= 1.0 && x.is_finite() && x < u64::MAX as f64) {
+        return Err(bad());
+    }
+    Ok(x as u64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_parse() {
+        assert_eq!(parse_bytes("8G"), Ok(8 << 30));
+        assert_eq!(parse_bytes("512MiB"), Ok(512 << 20));
+        assert_eq!(parse_bytes("1.5g"), Ok(3 << 29));
+        assert_eq!(parse_bytes("4096"), Ok(4096));
+        assert_eq!(parse_bytes("2k"), Ok(2048));
+        assert!(parse_bytes("x").is_err() && parse_bytes("-1G").is_err() && parse_bytes("0").is_err());
+        assert_eq!(human(3 << 29), "1.5 GiB");
+    }
+
+    #[test]
+    fn default_limit_is_half_the_ram() {
+        let (limit, origin) = memory_limit(&Settings::default());
+        match physical_ram() {
+            Some(ram) => assert_eq!(limit, ram / 2, "{origin}"),
+            None => assert_eq!(limit, FALLBACK_LIMIT),
+        }
+        let set = Settings {
+            memory_limit: Some(1 << 20),
+            ..Settings::default()
+        };
+        assert_eq!(memory_limit(&set).0, 1 << 20);
+    }
+}
