@@ -20,7 +20,7 @@ pub struct Settings {
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Photons", value_parser = parse_count, default_value_t = Settings::default().caustic_photons))]
     #[serde(deserialize_with = "count::deserialize")]
     pub caustic_photons: usize,
-    /// Photon bounces before a path stops (a cap on the photon pass alone; `max_depth` limits
+    /// Photon bounces before a path stops (a cap on the photon pass alone; max-depth limits
     /// whole light paths).
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Photons", default_value_t = Settings::default().max_photon_depth))]
     pub max_photon_depth: u32,

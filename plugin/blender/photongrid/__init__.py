@@ -274,6 +274,10 @@ class PhotongridRenderEngine(bpy.types.RenderEngine):
         base = getattr(self, "temporary_directory", "") or None
         if base and not os.path.isdir(base):
             base = None
+        if self.is_animation:
+            # Ctrl+F12 advances the scene's frame without re-evaluating the depsgraph that the
+            # glTF exporter reads: without this every frame would export the first one.
+            scene.frame_set(scene.frame_current, subframe=scene.frame_subframe)
         view_layer = depsgraph.view_layer
         passes = enabled_passes(view_layer)
         self._layer = view_layer.name

@@ -209,7 +209,7 @@ def bundled_schema(path: str = BUNDLED_SCHEMA) -> Optional[dict]:
 SECTIONS = {
     "SAMPLING": ("spp", "seed"),
     "PHOTONS": ("photons", "caustic_photons", "neighbours", "max_photon_depth"),
-    "LIGHT_PATHS": ("direct", "gather", "light_samples", "max_specular_depth", "split_depth"),
+    "LIGHT_PATHS": ("direct", "gather", "light_samples", "max_depth", "max_specular_depth", "split_depth"),
     "METHOD": ("method", "grid"),
 }
 NOT_PROPERTIES = ("width", "height", "passes", "time")
@@ -223,6 +223,7 @@ LABELS = {
     "direct": "Direct Light",
     "gather": "Gather Rays",
     "light_samples": "Light Samples",
+    "max_depth": "Max Bounces",
     "max_specular_depth": "Specular Bounces",
     "split_depth": "Glass Split Depth",
     "method": "Estimator",
@@ -628,19 +629,22 @@ class ProgressTracker:
 
     def stop_grace(self, now: Optional[float] = None) -> float:
         """Seconds to wait, after asking the renderer to stop, for the running pass to end and
-        its image to be written: the pass's expected remainder with a margin, 5 to 60 s."""
+        its image to be written: the pass's expected remainder with a margin, at least 5 s and
+        at most 60 s or three times the last pass."""
         now = self.clock() if now is None else now
         if self.pass_index < 0:
             return 30.0
         f = self.pass_fraction(now)
         in_pass = now - self.pass_start
-        if f > 0.02:
-            remaining = in_pass * (1.0 - f) / f
-        elif self.previous:
-            remaining = sum(self.previous.values())
-        else:
+        remaining = in_pass * (1.0 - f) / f if f > 0.02 else None
+        last = sum(self.previous.values()) if self.previous else None
+        if last is not None:
+            # Early in a pass its fraction says little (the photon phase is quick, the ones
+            # after it long): the previous pass's length is the better guide.
+            remaining = max(remaining or 0.0, last - in_pass)
+        if remaining is None:
             return 60.0
-        return min(60.0, max(5.0, 1.5 * remaining + 5.0))
+        return min(max(60.0, 3.0 * (last or 0.0)), max(5.0, 1.5 * remaining + 5.0))
 
 
 # --------------------------------------------------------------------------------------

@@ -253,6 +253,16 @@ def test_stop_grace_follows_the_pass():
     t.update({"event": "start", "phase": "photons", "total": 100}, now=0.0)
     t.update({"event": "progress", "phase": "photons", "fraction": 0.5}, now=1.0)
     assert 5.0 <= t.stop_grace(now=1.0) <= 60.0
+    # Pass 2 just started, its quick photon phase done: the wait covers a whole pass like the
+    # first (40 s), not what the fraction alone suggests.
+    for event, at in [({"event": "end", "phase": "photons", "seconds": 2.0}, 2.0),
+                      ({"event": "start", "phase": "render", "total": 10}, 2.0),
+                      ({"event": "end", "phase": "render", "seconds": 38.0}, 40.0),
+                      ({"event": "start", "phase": "photons", "total": 100}, 40.0),
+                      ({"event": "progress", "phase": "photons", "fraction": 1.0}, 41.0)]:
+        t.update(event, now=at)
+    assert t.stop_grace(now=41.0) >= 1.5 * 39.0
+    assert t.stop_grace(now=41.0) <= 3 * 40.0
 
 
 def test_run_process_events_and_error(tmp_path):
