@@ -623,3 +623,29 @@ fn exr_has_alpha_and_blender_named_passes() {
     assert!(floor.len() > 300 && floor.iter().filter(|z| (**z - 5.0).abs() < 1e-3).count() > 300);
     assert!(ch["A"].iter().all(|&v| v == 1.0), "the floor fills the top view");
 }
+
+#[test]
+fn irradiance_shows_a_spinner_on_a_terminal() {
+    // Bars are drawn only on a terminal: `script` (util-linux) gives the render one.
+    let dir = TempDir::new("tty");
+    let out = dir.join("out.exr");
+    let quote = |a: &str| format!("'{}'", a.replace('\'', "'\\''"));
+    let mut cmd = vec![quote(BIN)];
+    for a in render_args(&sample("cornell_glass.glb"), &out, &["--photons", "20000"]) {
+        cmd.push(quote(a));
+    }
+    let o = Command::new("script")
+        .args(["-qec", &cmd.join(" "), "/dev/null"])
+        .stdin(Stdio::null())
+        .output()
+        .expect("`script` (util-linux) runs the render on a pseudo-terminal");
+    ok(&o);
+    let screen = String::from_utf8_lossy(&o.stdout);
+    // The irradiance phase reports no progress of its own: a spinner and its elapsed time,
+    // where there used to be nothing.
+    let spinner = screen
+        .split(['\r', '\n'])
+        .any(|l| l.contains("irradiance ") && l.contains("00:00:") && !l.contains('%'));
+    assert!(spinner, "no irradiance spinner in:\n{screen}");
+    assert!(out.is_file());
+}
