@@ -307,6 +307,7 @@ fn job_from_table(index: usize, t: toml::Table, base: &Path) -> Result<Job, JobE
     let scene_s = string("scene")?.ok_or_else(|| fail("missing `scene` (the .glb/.gltf to render)".into()))?;
     let output = string("output")?
         .ok_or_else(|| fail("missing `output` (an EXR path, or a pattern with {scene} and {camera})".into()))?;
+    crate::paths::check_extension(Path::new(&output), crate::paths::Format::Exr, "`output`").map_err(fail)?;
     let key = |v: &toml::Value| match v {
         toml::Value::String(s) => Ok(s.clone()),
         toml::Value::Integer(i) => Ok(i.to_string()),

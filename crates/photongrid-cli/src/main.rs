@@ -11,8 +11,11 @@ use photongrid::scene::gltf::{load_with, LoadOptions};
 use photongrid::settings::parse_seconds_or_zero;
 use photongrid::Settings;
 use photongrid_cli::metrics::read_exr_rgb;
+use photongrid_cli::paths::{self, Format};
 use photongrid_cli::progress::{emit_json, Display, ProgressMode};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::Instant;
 
 /// Photon-mapping renderer for Blender-exported glTF scenes, caustics included.
@@ -32,9 +35,10 @@ enum Command {
     Render(RenderArgs),
     /// Show what was loaded from a scene: materials, lights, cameras, and what was approximated or ignored.
     Info {
-        /// The scene (.glb or .gltf).
-        scene: PathBuf,
-        /// Print JSON instead of text.
+        /// The scenes (.glb or .gltf), one or more.
+        #[arg(required = true, value_name = "SCENE")]
+        scenes: Vec<PathBuf>,
+        /// Print JSON instead of text: an object for one scene, an array for several.
         #[arg(long)]
         json: bool,
     },
@@ -75,53 +79,53 @@ struct BenchArgs {
     #[arg(default_value = "../shared/scenes")]
     dir: PathBuf,
     /// Output folder: bench.json, error_vs_time_<scene>_cam<i>.svg, time_vs_photons.svg, table.md.
-    #[arg(short, long, default_value = "out/bench")]
+    #[arg(short, long, default_value = "out/bench", help_heading = "Input and output")]
     out: PathBuf,
     /// Matrix preset; the options below override its parts.
-    #[arg(long, value_enum, default_value_t = photongrid_cli::bench::Preset::Small)]
+    #[arg(long, value_enum, default_value_t = photongrid_cli::bench::Preset::Small, help_heading = "Matrix")]
     preset: photongrid_cli::bench::Preset,
     /// Methods, comma-separated: knn, knn-k500, adaptive, single-map-knn, single-map-adaptive, gather8.
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, value_delimiter = ',', help_heading = "Matrix")]
     methods: Vec<String>,
     /// Photon counts per pass, comma-separated (e.g. 250k,1M,4M).
-    #[arg(long, value_delimiter = ',', value_parser = photongrid::settings::parse_count)]
+    #[arg(long, value_delimiter = ',', value_parser = photongrid::settings::parse_count, help_heading = "Matrix")]
     photons: Vec<usize>,
     /// Wall-time budgets in seconds, comma-separated (e.g. 5,15,60): each run renders with
-    /// `--time` at the method's settings. Combined with --photons, both kinds of runs are made.
-    #[arg(long = "time", value_delimiter = ',', value_parser = photongrid::settings::parse_seconds)]
+    /// --time at the method's settings. Combined with --photons, both kinds of runs are made.
+    #[arg(long = "time", value_delimiter = ',', value_parser = photongrid::settings::parse_seconds, help_heading = "Matrix")]
     times: Vec<f64>,
     /// Also write every run's images into OUT/images/.
-    #[arg(long)]
+    #[arg(long, help_heading = "Input and output")]
     images: bool,
     /// Number of seeds (0, 1, ... N-1).
-    #[arg(long)]
+    #[arg(long, help_heading = "Matrix")]
     seeds: Option<u64>,
     /// Scenes (file stems), comma-separated. Default: every scene with a reference.
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, value_delimiter = ',', help_heading = "Matrix")]
     scenes: Vec<String>,
     /// Image width (must divide the references' width; the references are box-filtered down).
-    #[arg(long)]
+    #[arg(long, help_heading = "Matrix")]
     width: Option<u32>,
     /// Image height (must divide the references' height).
-    #[arg(long)]
+    #[arg(long, help_heading = "Matrix")]
     height: Option<u32>,
     /// Camera rays per pixel (default: the render default).
-    #[arg(long)]
+    #[arg(long, help_heading = "Matrix")]
     spp: Option<u32>,
     /// Worker threads (default: all cores).
-    #[arg(long)]
+    #[arg(long, help_heading = "Run")]
     threads: Option<usize>,
     /// Keep the runs already in OUT/bench.json and skip them.
-    #[arg(long)]
+    #[arg(long, help_heading = "Input and output")]
     resume: bool,
     /// Replace an existing OUT/bench.json.
-    #[arg(long, conflicts_with = "resume")]
+    #[arg(long, conflicts_with = "resume", help_heading = "Input and output")]
     overwrite: bool,
     /// Only rewrite the charts and table.md from OUT/bench.json; render nothing.
-    #[arg(long)]
+    #[arg(long, help_heading = "Input and output")]
     report_only: bool,
     /// No per-run lines on stderr.
-    #[arg(short, long)]
+    #[arg(short, long, help_heading = "Run")]
     quiet: bool,
 }
 
@@ -147,7 +151,8 @@ struct RenderArgs {
     /// Exposure of the PNG preview in stops.
     #[arg(long, default_value_t = 0.0, help_heading = "Input and output")]
     exposure: f32,
-    /// Add AOV layers to the EXR: albedo, N, depth, photons (density and radius).
+    /// Add passes to the EXR, named as Blender names them: DiffCol (albedo), Normal, Depth
+    /// (along the camera's axis; 1e10 for the background), PhotonDensity and PhotonRadius.
     #[arg(long, help_heading = "Input and output")]
     aovs: bool,
     /// Write settings, phase seconds, photon counts and peak memory as JSON here.
@@ -157,7 +162,8 @@ struct RenderArgs {
     #[arg(long, value_name = "DIR", help_heading = "Input and output")]
     dump_grids: Option<PathBuf>,
     /// Write the image so far to the output (atomically) every this many seconds while passes
-    /// run, so that a killed render loses little (0: after every pass).
+    /// run, so that a killed render loses little (0: after every pass but the last). Ctrl+C
+    /// ends the render after the running pass and writes it.
     #[arg(long, value_name = "SECONDS", value_parser = parse_seconds_or_zero, help_heading = "Input and output")]
     checkpoint: Option<f64>,
     /// Allow buffers and images outside the scene's folder.
@@ -180,44 +186,65 @@ struct BatchArgs {
     #[arg(value_name = "JOBS.toml")]
     jobs_file: PathBuf,
     /// Write the JSON report here (per unit: status, error, seconds, stats; and totals).
-    #[arg(long, value_name = "REPORT.json", required_unless_present = "list")]
+    #[arg(
+        long,
+        value_name = "REPORT.json",
+        required_unless_present = "list",
+        help_heading = "Output"
+    )]
     report: Option<PathBuf>,
     /// Run only shard I of N (0-based): the units whose index % N == I.
-    #[arg(long, value_name = "I/N")]
+    #[arg(long, value_name = "I/N", help_heading = "Selection")]
     shard: Option<String>,
-    /// Run only these units (by index after expansion, as `--list` prints them); repeatable or comma-separated.
-    #[arg(long, value_name = "INDEX", value_delimiter = ',')]
+    /// Run only these units (by index after expansion, as --list prints them); repeatable or comma-separated.
+    #[arg(long, value_name = "INDEX", value_delimiter = ',', help_heading = "Selection")]
     only: Vec<usize>,
     /// Jobs rendered at once, each in its own pool of threads/J threads.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, help_heading = "Run")]
     jobs: usize,
     /// Threads in all (default: all cores).
-    #[arg(long)]
+    #[arg(long, help_heading = "Run")]
     threads: Option<usize>,
     /// Print the expanded units as JSON lines on stdout and exit.
-    #[arg(long)]
+    #[arg(long, help_heading = "Selection")]
     list: bool,
     /// Render even outputs whose sidecar says they are finished.
-    #[arg(long)]
+    #[arg(long, help_heading = "Selection")]
     force: bool,
     /// Append one JSON line per unit event (start, done, skipped, failed) to this file.
-    #[arg(long, value_name = "JOURNAL.jsonl")]
+    #[arg(long, value_name = "JOURNAL.jsonl", help_heading = "Output")]
     journal: Option<PathBuf>,
     /// No per-unit lines on stderr.
-    #[arg(long, short)]
+    #[arg(long, short, help_heading = "Output")]
     quiet: bool,
 }
 
 fn main() {
-    let cli = Cli::parse();
+    let json_args = std::env::args()
+        .collect::<Vec<_>>()
+        .windows(2)
+        .any(|w| (w[0] == "--progress" && w[1] == "json") || w[1] == "--progress=json");
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        // With --progress json a program reads stderr: a usage error is a JSON event too.
+        Err(e) if json_args && e.use_stderr() => {
+            let text = e.to_string();
+            let message = text.lines().next().unwrap_or_default().trim_start_matches("error: ");
+            emit_json(&serde_json::json!({"event": "error", "message": message}));
+            std::process::exit(e.exit_code());
+        }
+        Err(e) => e.exit(),
+    };
     let json = matches!(&cli.command, Command::Render(r) if r.progress == ProgressMode::Json);
-    init_logging(cli.verbose);
+    init_logging(cli.verbose, json);
     if let Err(e) = run(cli) {
         let message = error_message(&e);
         if json {
+            // Only JSON lines on stderr: the message is in the event.
             emit_json(&serde_json::json!({"event": "error", "message": message}));
+        } else {
+            eprintln!("error: {message}");
         }
-        eprintln!("error: {message}");
         std::process::exit(1);
     }
 }
@@ -236,7 +263,7 @@ fn error_message(e: &anyhow::Error) -> String {
     message
 }
 
-fn init_logging(verbose: u8) {
+fn init_logging(verbose: u8, json: bool) {
     let level = match verbose {
         0 => "warn",
         1 => "info",
@@ -244,6 +271,14 @@ fn init_logging(verbose: u8) {
     };
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(level));
+    if json {
+        use tracing_subscriber::prelude::*;
+        let _ = tracing_subscriber::registry()
+            .with(filter)
+            .with(photongrid_cli::progress::JsonLog)
+            .try_init();
+        return;
+    }
     use std::io::IsTerminal;
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
@@ -256,7 +291,7 @@ fn init_logging(verbose: u8) {
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Render(args) => render(args),
-        Command::Info { scene, json } => info(&scene, json),
+        Command::Info { scenes, json } => info(&scenes, json),
         Command::Batch(args) => batch(args),
         Command::Compare {
             image,
@@ -406,13 +441,60 @@ fn set_threads(threads: Option<usize>) -> Result<()> {
     Ok(())
 }
 
+/// Stop after the current pass on the first SIGINT or SIGTERM (Ctrl+C, Esc in Blender), which
+/// then writes the image so far and exits 0; quit at once on the second.
+fn stop_on_signals() -> Arc<AtomicBool> {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    let flag = Arc::new(AtomicBool::new(false));
+    for (signal, code) in [(SIGINT, 130), (SIGTERM, 143)] {
+        // The first registration exits only when the flag is already set (a second signal).
+        let ok = signal_hook::flag::register_conditional_shutdown(signal, code, Arc::clone(&flag))
+            .and_then(|_| signal_hook::flag::register(signal, Arc::clone(&flag)));
+        if let Err(e) = ok {
+            tracing::debug!("cannot handle signal {signal}: {e}");
+        }
+    }
+    flag
+}
+
+/// Tell the user on the terminal, as soon as it is asked for, that the render will stop after
+/// this pass. (With `--progress json` the display says it, between passes.)
+fn announce_stop(flag: Arc<AtomicBool>, mode: ProgressMode) {
+    if mode != ProgressMode::Auto {
+        return;
+    }
+    std::thread::spawn(move || {
+        while !flag.load(Ordering::Relaxed) {
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        }
+        eprintln!("photongrid: stopping after this pass; the image so far is kept (Ctrl+C again quits now)");
+    });
+}
+
 fn render(a: RenderArgs) -> Result<()> {
     let start = Instant::now();
     set_threads(a.threads)?;
     let settings = &a.settings;
     settings.validate().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
+    // The outputs first, before any work: the right extensions, folders created, writable.
+    paths::check_extension(&a.output, Format::Exr, "--output").map_err(anyhow::Error::msg)?;
+    if let Some(p) = &a.png {
+        paths::check_extension(p, Format::Png, "--png").map_err(anyhow::Error::msg)?;
+    }
+    let patterns = [Some(&a.output), a.png.as_ref(), a.stats.as_ref()];
+    for p in patterns.into_iter().flatten() {
+        // A {camera} in a folder name is known only once the scene is loaded.
+        if !p.parent().is_some_and(|d| d.to_string_lossy().contains("{camera}")) {
+            paths::prepare(&output_for(p, "camera", false)).map_err(anyhow::Error::msg)?;
+        }
+    }
+    if let Some(dir) = &a.dump_grids {
+        paths::prepare(&dir.join("plane000_counts.exr")).map_err(anyhow::Error::msg)?;
+    }
     plan_outputs(&a, None)?;
-    let display = Display::new(a.progress);
+    let stop = stop_on_signals();
+    let display = Display::new(a.progress).with_stop(Arc::clone(&stop));
+    announce_stop(Arc::clone(&stop), a.progress);
     let progress = Progress::new(&display);
 
     let phase = progress.phase("load", 0);
@@ -425,13 +507,19 @@ fn render(a: RenderArgs) -> Result<()> {
     )?;
     let load_seconds = phase.finish();
     for w in scene.report.approximated.iter().chain(&scene.report.ignored) {
-        tracing::warn!("{}: {w}", a.scene.display());
+        display.warning(&format!("{}: {w}", a.scene.display()));
     }
     let mut cameras = pipeline::select_cameras(&scene, &a.cameras)?;
     if a.cameras.is_empty() {
         cameras.truncate(1);
     }
     let outputs = plan_outputs(&a, Some(&cameras))?;
+    for (o, p) in &outputs {
+        paths::prepare(o).map_err(anyhow::Error::msg)?;
+        if let Some(p) = p {
+            paths::prepare(p).map_err(anyhow::Error::msg)?;
+        }
+    }
 
     let aovs = if a.aovs {
         AovSelection::all()
@@ -440,10 +528,12 @@ fn render(a: RenderArgs) -> Result<()> {
     };
     let json_progress = a.progress == ProgressMode::Json;
     let mut write_checkpoint = |films: &[Film], passes: u32| -> Result<(), String> {
-        for (film, (out, _)) in films.iter().zip(&outputs) {
+        for ((film, (out, _)), camera) in films.iter().zip(&outputs).zip(&cameras) {
             output::write_exr(out, film, aovs).map_err(|e| e.to_string())?;
             if json_progress {
-                emit_json(&serde_json::json!({"event": "checkpoint", "path": out, "passes": passes}));
+                emit_json(
+                    &serde_json::json!({"event": "checkpoint", "camera": camera.name, "path": out, "passes": passes}),
+                );
             }
         }
         Ok(())
@@ -488,26 +578,48 @@ fn render(a: RenderArgs) -> Result<()> {
         camera.output = Some(out.clone());
         camera.png = png.clone();
         if json_progress {
-            emit_json(&serde_json::json!({"event": "output", "camera": camera.camera, "path": out}));
+            emit_json(
+                &serde_json::json!({"event": "output", "camera": camera.camera, "path": out, "passes": report.passes.count}),
+            );
         }
     }
     report.seconds.total = start.elapsed().as_secs_f64();
     report.cpu_seconds = pipeline::cpu_seconds();
-    if a.progress == ProgressMode::Auto {
-        let phases: Vec<String> = report
-            .seconds
-            .phases()
-            .iter()
-            .map(|(name, s)| format!("{name} {s:.2} s"))
-            .collect();
-        let n = report.passes.count;
-        eprintln!(
-            "{}: {n} pass{} · {} · total {:.2} s",
-            a.scene.display(),
-            if n == 1 { "" } else { "es" },
-            phases.join(" · "),
-            report.seconds.total
-        );
+    let n = report.passes.count;
+    match a.progress {
+        ProgressMode::Auto => {
+            let phases: Vec<String> = report
+                .seconds
+                .phases()
+                .iter()
+                .map(|(name, s)| format!("{name} {s:.2} s"))
+                .collect();
+            let stopped = if report.passes.stopped_by == Some(photongrid::render::progressive::Stop::Requested) {
+                " (stopped on request)"
+            } else {
+                ""
+            };
+            eprintln!(
+                "{}: {n} pass{}{stopped} · {} · total {:.2} s",
+                a.scene.display(),
+                if n == 1 { "" } else { "es" },
+                phases.join(" · "),
+                report.seconds.total
+            );
+        }
+        ProgressMode::Json => {
+            let seconds: serde_json::Map<String, serde_json::Value> = report
+                .seconds
+                .phases()
+                .into_iter()
+                .map(|(name, s)| (name.to_string(), serde_json::json!(s)))
+                .collect();
+            emit_json(&serde_json::json!({
+                "event": "done", "passes": n, "stopped_by": report.passes.stopped_by,
+                "seconds": seconds, "total": report.seconds.total,
+            }));
+        }
+        ProgressMode::Quiet => {}
     }
     if let Some(path) = &a.stats {
         output::write_atomic(path, serde_json::to_string_pretty(&report)?.as_bytes())?;
@@ -615,6 +727,11 @@ fn batch(a: BatchArgs) -> Result<()> {
         return Ok(());
     }
     let report_path = a.report.as_deref().context("--report is required")?;
+    // Its folder is created (as the images' are), and it must be writable before any render.
+    paths::prepare(report_path).map_err(anyhow::Error::msg)?;
+    if let Some(j) = &a.journal {
+        paths::prepare(j).map_err(anyhow::Error::msg)?;
+    }
     let mut opts = batch::RunOptions {
         jobs: a.jobs,
         force: a.force,
@@ -691,20 +808,65 @@ fn batch_refusals(a: &BatchArgs, units: &mut [photongrid_cli::batch::Unit]) -> R
     Ok(())
 }
 
-fn info(path: &Path, json: bool) -> Result<()> {
+/// Describe each scene; with several, one that fails to load is reported and the others still
+/// are (the exit status is then 1).
+fn info(paths: &[PathBuf], json: bool) -> Result<()> {
+    if let [path] = paths {
+        let doc = info_one(path, json)?;
+        if json {
+            println!("{}", serde_json::to_string_pretty(&doc)?);
+        }
+        return Ok(());
+    }
+    let mut docs = Vec::new();
+    let mut failed = Vec::new();
+    for path in paths {
+        match info_one(path, json) {
+            Ok(doc) => docs.push(doc),
+            Err(e) => {
+                let message = error_message(&e);
+                if json {
+                    docs.push(serde_json::json!({"scene": path, "error": message}));
+                } else {
+                    eprintln!("error: {message}");
+                }
+                failed.push(path.display().to_string());
+            }
+        }
+        if !json {
+            println!();
+        }
+    }
+    if json {
+        println!("{}", serde_json::to_string_pretty(&serde_json::Value::Array(docs))?);
+    }
+    if !failed.is_empty() {
+        bail!(
+            "{} of {} scenes could not be read: {}",
+            failed.len(),
+            paths.len(),
+            failed.join(", ")
+        );
+    }
+    Ok(())
+}
+
+/// One scene: printed as text, or returned as JSON (`Value::Null` when printed).
+fn info_one(path: &Path, json: bool) -> Result<serde_json::Value> {
+    use photongrid_cli::info::{camera_json, describe};
     let scene = photongrid::load(path)?;
     let r = &scene.report;
     if json {
-        let v = serde_json::json!({
+        let mut report = serde_json::to_value(r)?;
+        report["cameras"] = scene.cameras.iter().map(camera_json).collect();
+        return Ok(serde_json::json!({
             "scene": path,
             "triangles": scene.triangles.len(),
             "surface_area_m2": scene.surface_area(),
             "bounds": scene.bounds,
             "has_specular": scene.has_specular(),
-            "report": r,
-        });
-        println!("{}", serde_json::to_string_pretty(&v)?);
-        return Ok(());
+            "report": report,
+        }));
     }
     println!("{}", path.display());
     println!(
@@ -726,7 +888,12 @@ fn info(path: &Path, json: bool) -> Result<()> {
     };
     section("materials", &r.materials);
     section("lights", &r.lights);
-    section("cameras", &r.cameras);
+    let cameras: Vec<String> = scene
+        .cameras
+        .iter()
+        .map(|c| format!("{} '{}': {}", c.index, c.name, describe(c)))
+        .collect();
+    section("cameras", &cameras);
     section("approximated", &r.approximated);
     section("ignored", &r.ignored);
     println!(
@@ -762,7 +929,7 @@ fn info(path: &Path, json: bool) -> Result<()> {
             p.cell_area() * 1e6
         );
     }
-    Ok(())
+    Ok(serde_json::Value::Null)
 }
 
 fn compare(image: &Path, reference: &Path, mask: Option<&Path>, block: usize, json: bool) -> Result<()> {

@@ -302,10 +302,12 @@ fn absurd_photon_count_is_refused_quickly() {
 }
 
 #[test]
-fn output_folder_must_exist() {
+fn output_folder_in_an_unwritable_place_is_refused() {
+    // A missing folder is created (issue 11); one that cannot be created is an error naming it.
     let dir = TempDir::new("outdir");
     let p = simple_scene(100.0).write_glb(dir.path(), "s.glb");
-    let out = dir.join("no/such/folder/out.exr");
+    std::fs::write(dir.join("file"), b"not a folder").unwrap();
+    let out = dir.join("file/sub/out.exr");
     let r = run(
         &dir,
         &[
@@ -321,7 +323,7 @@ fn output_folder_must_exist() {
             "6",
         ],
     );
-    assert_fails_with(&r, &["no/such/folder", "does not exist"]);
+    assert_fails_with(&r, &["file/sub/out.exr", "cannot create the folder"]);
 }
 
 #[test]

@@ -180,7 +180,7 @@ fn sppm_plane_under_point_light_matches_closed_form() {
         100.0 * rel
     );
     assert!(rel.abs() < 0.03, "{:+.2} %", 100.0 * rel);
-    // Every visible point got a radius (the photons.radius AOV shows sample 0's).
+    // Every visible point got a radius (the PhotonRadius.X pass shows sample 0's).
     assert!(film.aov.iter().all(|a| a.radius > 0.0));
 }
 

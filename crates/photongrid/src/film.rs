@@ -10,7 +10,8 @@ pub struct Aov {
     pub albedo: Rgb,
     /// Shading normal at the first hit (facing the camera).
     pub normal: Vec3,
-    /// Distance from the camera to the first hit (0 for none).
+    /// Depth of the first hit along the camera's viewing axis, as Blender's Z pass (distance
+    /// along the ray times its cosine to the axis); 0 for none.
     pub depth: f32,
     /// Photon density at the first diffuse hit [photons/m²].
     pub density: f32,

@@ -1,5 +1,6 @@
-//! Writing images: one single-part EXR (float32 `R,G,B` plus optional AOV layers) and an
-//! optional PNG preview, both written atomically (temporary file, then rename).
+//! Writing images: one single-part EXR (float32 `R,G,B,A` plus optional AOV layers named as
+//! Blender names its passes) and an optional PNG preview, both written atomically (temporary
+//! file, then rename).
 
 use crate::film::Film;
 use exr::prelude::{AnyChannel, AnyChannels, Encoding, FlatSamples, Layer, LayerAttributes, WritableImage};
@@ -43,18 +44,22 @@ pub enum OutputError {
     },
 }
 
-/// Which AOV layers to add to the EXR.
+/// Which AOV layers to add to the EXR. Their channels are named as Blender names the passes
+/// (`<pass>.<channel>`), so Blender's image and compositor nodes show them as passes.
 #[derive(Clone, Copy, Debug, Default, serde::Serialize)]
 pub struct AovSelection {
-    /// `albedo.R/G/B`.
+    /// `DiffCol.R/G/B`: albedo of the first diffuse surface (Blender's Diffuse Color).
     pub albedo: bool,
-    /// `N.X/Y/Z`.
+    /// `Normal.X/Y/Z`: shading normal at the first hit, world space of the file (glTF: Y up).
     pub normal: bool,
-    /// `depth.Z`.
+    /// `Depth.Z`: the film's depth; [`BACKGROUND_DEPTH`] where the camera ray hit nothing.
     pub depth: bool,
-    /// `photons.density` and `photons.radius`.
+    /// `PhotonDensity.X` (photons/m²) and `PhotonRadius.X` (m) of the photon estimate.
     pub photons: bool,
 }
+
+/// `Depth.Z` where the camera ray hit nothing: what Blender's Cycles writes for the background.
+pub const BACKGROUND_DEPTH: f32 = 1e10;
 
 impl AovSelection {
     /// Every layer.
@@ -445,36 +450,46 @@ impl OutputPlan {
     }
 }
 
-/// Encode a film as a single-part EXR with float32 channels. A value that is NaN or infinite
-/// is written as 0 (the render reports how many pixels were: [`Film::nonfinite`]), so that no
-/// image this renderer writes holds a non-finite value.
+/// Encode a film as a single-part EXR with float32 channels: `R,G,B` radiance, `A` coverage
+/// (1 where the pixel's first camera ray hit a surface, 0 for the background: the background is
+/// transparent) and the AOV layers `aovs` selects. A value that is NaN or infinite is written
+/// as 0 (the render reports how many pixels were: [`Film::nonfinite`]), so that no image this
+/// renderer writes holds a non-finite value.
 pub fn encode_exr(film: &Film, aovs: AovSelection) -> std::result::Result<Vec<u8>, String> {
     let size = (film.width as usize, film.height as usize);
     let ch = |name: &str, f: &dyn Fn(usize) -> f32| {
         let finite = |i| Some(f(i)).filter(|v| v.is_finite()).unwrap_or(0.0);
         AnyChannel::new(name, FlatSamples::F32((0..film.color.len()).map(finite).collect()))
     };
+    let hit = |i: usize| film.aov[i].depth > 0.0;
     let mut channels = vec![
         ch("R", &|i| film.color[i].x),
         ch("G", &|i| film.color[i].y),
         ch("B", &|i| film.color[i].z),
+        ch("A", &|i| if hit(i) { 1.0 } else { 0.0 }),
     ];
     if aovs.albedo {
-        channels.push(ch("albedo.R", &|i| film.aov[i].albedo.x));
-        channels.push(ch("albedo.G", &|i| film.aov[i].albedo.y));
-        channels.push(ch("albedo.B", &|i| film.aov[i].albedo.z));
+        channels.push(ch("DiffCol.R", &|i| film.aov[i].albedo.x));
+        channels.push(ch("DiffCol.G", &|i| film.aov[i].albedo.y));
+        channels.push(ch("DiffCol.B", &|i| film.aov[i].albedo.z));
     }
     if aovs.normal {
-        channels.push(ch("N.X", &|i| film.aov[i].normal.x));
-        channels.push(ch("N.Y", &|i| film.aov[i].normal.y));
-        channels.push(ch("N.Z", &|i| film.aov[i].normal.z));
+        channels.push(ch("Normal.X", &|i| film.aov[i].normal.x));
+        channels.push(ch("Normal.Y", &|i| film.aov[i].normal.y));
+        channels.push(ch("Normal.Z", &|i| film.aov[i].normal.z));
     }
     if aovs.depth {
-        channels.push(ch("depth.Z", &|i| film.aov[i].depth));
+        channels.push(ch("Depth.Z", &|i| {
+            if hit(i) {
+                film.aov[i].depth
+            } else {
+                BACKGROUND_DEPTH
+            }
+        }));
     }
     if aovs.photons {
-        channels.push(ch("photons.density", &|i| film.aov[i].density));
-        channels.push(ch("photons.radius", &|i| film.aov[i].radius));
+        channels.push(ch("PhotonDensity.X", &|i| film.aov[i].density));
+        channels.push(ch("PhotonRadius.X", &|i| film.aov[i].radius));
     }
     let layer = Layer::new(
         size,
@@ -564,6 +579,7 @@ mod tests {
         for (i, c) in film.color.iter_mut().enumerate() {
             *c = Rgb::new(i as f32, 0.5, 1e-3);
         }
+        film.aov[7].depth = 2.5;
         let dir = std::env::temp_dir().join(format!("pg-exr-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let p = dir.join("a.exr");
@@ -585,7 +601,19 @@ mod tests {
         };
         assert_eq!([channel("R")[7], channel("G")[7], channel("B")[7]], [7.0, 0.5, 1e-3]);
         let names: Vec<String> = layer.channel_data.list.iter().map(|c| c.name.to_string()).collect();
-        assert!(names.contains(&"albedo.R".to_string()) && names.contains(&"depth.Z".to_string()));
+        for name in [
+            "A",
+            "DiffCol.R",
+            "Normal.Z",
+            "Depth.Z",
+            "PhotonDensity.X",
+            "PhotonRadius.X",
+        ] {
+            assert!(names.contains(&name.to_string()), "{name} not in {names:?}");
+        }
+        // Pixel 7 saw a surface at 2.5 m; the others saw the background.
+        assert_eq!((channel("A")[7], channel("Depth.Z")[7]), (1.0, 2.5));
+        assert_eq!((channel("A")[0], channel("Depth.Z")[0]), (0.0, BACKGROUND_DEPTH));
         // No temporary file left behind.
         assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
         std::fs::remove_dir_all(&dir).unwrap();

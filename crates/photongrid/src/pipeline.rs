@@ -337,7 +337,8 @@ fn caustic_photons(scene: &Scene, settings: &Settings) -> usize {
 /// Render the request's cameras progressively: passes of `settings.photons` new photons (seed
 /// [`pass_seed`] of the pass) and `settings.spp` new samples per pixel, accumulated per camera,
 /// until `settings.passes` passes ran or the next pass would end after `settings.time` seconds
-/// counted from `request.start` ([`Budget`]); neither given: one pass. The same seed and pass
+/// counted from `request.start` ([`Budget`]; neither given: one pass), or the progress observer
+/// asks to stop ([`Progress::should_stop`], polled between passes). The same seed and pass
 /// count give the same images whatever the thread count. Each pass's photons serve every
 /// camera, then are dropped. `checkpoint` writes the images so far every `every` seconds,
 /// except after the last pass (the caller writes the final images).
@@ -381,6 +382,9 @@ pub fn render(
     let (mut last, mut last_checkpoint) = (0.0f64, Instant::now());
     let stop = loop {
         let done = report.passes.count;
+        if done > 0 && progress.should_stop() {
+            break Stop::Requested;
+        }
         if let Err(stop) = budget.next(done, start.elapsed().as_secs_f64(), last) {
             break stop;
         }
@@ -403,7 +407,7 @@ pub fn render(
         report.passes.count += 1;
         tracing::info!(pass = done + 1, seconds = format!("{last:.3}"), "pass done");
         if let Some(cp) = checkpoint.as_mut() {
-            let more = budget.next(done + 1, start.elapsed().as_secs_f64(), last).is_ok();
+            let more = !progress.should_stop() && budget.next(done + 1, start.elapsed().as_secs_f64(), last).is_ok();
             if more && last_checkpoint.elapsed().as_secs_f64() >= cp.every {
                 let tw = Instant::now();
                 let films: Vec<Film> = accs.iter().map(Accumulator::film).collect();
@@ -710,6 +714,7 @@ fn render_pass(
     progress: &Progress<'_>,
 ) -> f64 {
     let rs = render_settings(camera, settings, pass);
+    progress.camera(&camera.name);
     let phase = progress.phase("render", rs.height as u64);
     {
         let _s = tracing::info_span!(

@@ -14,6 +14,13 @@ pub trait Observer: Sync {
     fn advance(&self, _phase: &'static str, _done: u64, _total: u64) {}
     /// The phase ended after `seconds`.
     fn end(&self, _phase: &'static str, _seconds: f64) {}
+    /// The phases that follow (the next `render` phase) work on the camera `name`.
+    fn camera(&self, _name: &str) {}
+    /// Whether the front end asks to stop after the current pass (Esc, Ctrl+C). Polled between
+    /// passes; the passes done so far are kept.
+    fn should_stop(&self) -> bool {
+        false
+    }
 }
 
 /// An observer that shows nothing.
@@ -42,6 +49,16 @@ impl<'a> Progress<'a> {
     /// Report nothing.
     pub fn quiet() -> Progress<'static> {
         Progress { observer: &Silent }
+    }
+
+    /// Say which camera the next phases work on.
+    pub fn camera(&self, name: &str) {
+        self.observer.camera(name);
+    }
+
+    /// Whether the front end asks to stop after the current pass.
+    pub fn should_stop(&self) -> bool {
+        self.observer.should_stop()
     }
 
     /// Start a phase of `total` units of work (0 if unknown).

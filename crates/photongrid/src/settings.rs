@@ -20,7 +20,7 @@ pub struct Settings {
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Photons", value_parser = parse_count, default_value_t = Settings::default().caustic_photons))]
     #[serde(deserialize_with = "count::deserialize")]
     pub caustic_photons: usize,
-    /// Photon bounces before a path stops (a cap on the photon pass alone; `max_depth` limits
+    /// Photon bounces before a path stops (a cap on the photon pass alone; max-depth limits
     /// whole light paths).
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Photons", default_value_t = Settings::default().max_photon_depth))]
     pub max_photon_depth: u32,
@@ -48,8 +48,9 @@ pub struct Settings {
     /// Radiance estimate from photons.
     #[cfg_attr(feature = "cli", arg(long, value_enum, help_heading = "Estimate", default_value_t = Settings::default().method))]
     pub method: Method,
-    /// Photons per radiance estimate (k nearest neighbours; n of the paper).
-    #[cfg_attr(feature = "cli", arg(long, visible_alias = "neighbors", help_heading = "Estimate", default_value_t = Settings::default().neighbours))]
+    /// Photons per radiance estimate (k nearest neighbours; n of the paper; 1k is accepted).
+    #[cfg_attr(feature = "cli", arg(long, visible_alias = "neighbors", help_heading = "Estimate", value_parser = parse_count, default_value_t = Settings::default().neighbours))]
+    #[serde(deserialize_with = "count::deserialize")]
     pub neighbours: usize,
     /// Direct light from shadow rays, or from photons like the paper's single photon map.
     #[cfg_attr(feature = "cli", arg(long, value_enum, help_heading = "Estimate", default_value_t = Settings::default().direct))]
@@ -78,7 +79,7 @@ pub struct Settings {
     /// Thresholding of wavelet details: the paper's fixed value, or set from the data.
     #[cfg_attr(feature = "cli", arg(long, value_enum, help_heading = "Grids", default_value_t = Settings::default().threshold))]
     pub threshold: ThresholdChoice,
-    /// The fixed threshold (photon counts) for `--threshold fixed`.
+    /// The threshold (photon counts) of the fixed thresholding.
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", default_value_t = Settings::default().threshold_value))]
     pub threshold_value: f32,
     /// Wavelet levels (at most; fewer on small grids).
@@ -113,14 +114,17 @@ pub struct Settings {
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Light paths", default_value_t = Settings::default().gather))]
     pub gather: u32,
     /// Photons per precomputed irradiance estimate (final gathering).
-    #[cfg_attr(feature = "cli", arg(long, help_heading = "Light paths", default_value_t = Settings::default().gather_neighbours))]
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Light paths", value_parser = parse_count, default_value_t = Settings::default().gather_neighbours))]
+    #[serde(deserialize_with = "count::deserialize")]
     pub gather_neighbours: usize,
     /// Every how many photons an irradiance point is precomputed (final gathering).
-    #[cfg_attr(feature = "cli", arg(long, help_heading = "Light paths", default_value_t = Settings::default().gather_stride))]
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Light paths", value_parser = parse_count, default_value_t = Settings::default().gather_stride))]
+    #[serde(deserialize_with = "count::deserialize")]
     pub gather_stride: usize,
 
-    /// Progressive rendering: at most this many passes, each tracing `photons` new photons and
-    /// adding `spp` new camera samples per pixel (neither this nor `time`: one pass).
+    /// Progressive rendering: at most this many passes, each tracing as many new photons and
+    /// adding as many new camera samples per pixel as one pass (neither this nor a time budget:
+    /// one pass).
     #[cfg_attr(feature = "cli", arg(long, value_name = "P", help_heading = "Passes and time"))]
     #[serde(skip_serializing_if = "Option::is_none")]
     pub passes: Option<u32>,
@@ -218,7 +222,7 @@ pub enum WaveletChoice {
 pub enum ThresholdChoice {
     /// Keep all details (perfect reconstruction).
     None,
-    /// The paper's fixed threshold on raw counts (`threshold_value`), hard.
+    /// The paper's fixed threshold on raw counts (threshold value), hard.
     Fixed,
     /// Anscombe transform, σ from the finest band, hard threshold σ√(2 ln n).
     Universal,

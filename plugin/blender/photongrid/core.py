@@ -1,14 +1,21 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """The add-on's core as plain Python, testable without a RenderEngine.
 
-- ``find_binary``: where the ``photongrid`` executable is.
+- ``find_binary``: where the ``photongrid`` executable is (the preferences, ``PHOTONGRID_BIN``,
+  the binary inside the extension, ``PATH``).
+- ``schema_from_binary`` / ``property_specs``: the binary's own description of its settings
+  (``photongrid settings --schema``, run once per binary and cached) turned into the panel's
+  properties: names, defaults, choices and tooltips are the binary's, never copies.
 - ``gltf_export_options`` / ``export_scene``: the scene to a .glb with Blender's own exporter.
 - ``build_command``: the ``photongrid render`` command line for one camera.
-- ``parse_event`` / ``ProgressTracker``: the CLI's ``--progress json`` lines to a phase and
-  an overall fraction.
-- ``run_process``: runs the command, reads stderr in a thread, hands events to a callback
-  on the calling thread, stops the process when asked to cancel (terminate, then kill).
-- ``run_photongrid``: export → process → path of the rendered EXR.
+- ``parse_event`` / ``ProgressTracker``: the CLI's ``--progress json`` lines to a status and an
+  overall fraction that never goes back, over every phase and pass.
+- ``run_process``: runs the command, reads stderr in a thread, hands events to a callback on
+  the calling thread; asked to cancel, it asks the renderer to stop after the current pass
+  (SIGINT, which makes it write the image so far), and stops it outright if that takes too long.
+- ``read_exr_channels``: the EXR's channels (colour, alpha and passes) in Blender's row order.
+- ``run_photongrid``: export → process (checkpoints and warnings reported as they come) → the
+  rendered EXR.
 
 Nothing here imports ``bpy`` at module level; ``export_scene`` and ``run_photongrid`` import
 it when called.
@@ -17,10 +24,14 @@ it when called.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
+import math
 import os
 import queue
 import shutil
+import signal
+import stat
 import subprocess
 import sys
 import threading
@@ -33,16 +44,11 @@ MISSING_BINARY_MESSAGE = (
     "photongrid binary not found: set its path in Preferences > Add-ons > photongrid, "
     "or put it on PATH"
 )
-
-# Share of the overall progress bar per CLI phase; the small phases split the rest (5 %).
-PHASE_WEIGHTS = {
-    "load": 0.01,
-    "bvh": 0.01,
-    "photons": 0.40,
-    "build": 0.02,
-    "render": 0.55,
-    "write": 0.01,
-}
+PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__))
+# The binary the platform build of the extension carries (plugin/build_extension.py).
+BUNDLED_BINARY = os.path.join(PACKAGE_DIR, "bin", BINARY_NAME + (".exe" if os.name == "nt" else ""))
+# The settings schema of that binary, written beside it at build time.
+BUNDLED_SCHEMA = os.path.join(PACKAGE_DIR, "settings_schema.json")
 
 
 class PhotongridError(Exception):
@@ -54,7 +60,7 @@ class MissingBinaryError(PhotongridError):
 
 
 class Cancelled(PhotongridError):
-    """The user cancelled the render (Esc); the process has been stopped."""
+    """The user cancelled the render (Esc) and no image was kept; the process has been stopped."""
 
 
 # --------------------------------------------------------------------------------------
@@ -74,12 +80,27 @@ def _executable(path: str) -> Optional[str]:
     return None
 
 
-def find_binary(configured: str = "", env: Optional[dict] = None) -> str:
+def bundled_binary(path: str = BUNDLED_BINARY) -> Optional[str]:
+    """The binary inside the installed extension, made executable if the installer dropped its
+    permission bits (Blender extracts extension zips without them); None if there is none."""
+    if not os.path.isfile(path):
+        return None
+    if not os.access(path, os.X_OK):
+        try:
+            mode = os.stat(path).st_mode
+            os.chmod(path, mode | stat.S_IXUSR | stat.S_IXGRP | stat.S_IXOTH)
+        except OSError:
+            return None
+    return path if os.access(path, os.X_OK) else None
+
+
+def find_binary(configured: str = "", env: Optional[dict] = None, bundled: Optional[str] = BUNDLED_BINARY) -> str:
     """The photongrid executable to run.
 
     Order: the path set in the add-on preferences (an error if set but wrong, rather than
-    silently running another binary), then the ``PHOTONGRID_BIN`` environment variable, then
-    ``photongrid`` on ``PATH``. Raises ``MissingBinaryError`` with what to do when none is found.
+    silently running another binary), then the ``PHOTONGRID_BIN`` environment variable, then the
+    binary inside the extension (``bundled``), then ``photongrid`` on ``PATH``. Raises
+    ``MissingBinaryError`` with what to do when none is found.
     """
     env = os.environ if env is None else env
     configured = (configured or "").strip()
@@ -90,11 +111,15 @@ def find_binary(configured: str = "", env: Optional[dict] = None) -> str:
             return found
         raise MissingBinaryError(
             f"photongrid binary not found at '{path}' (from the add-on preferences): set its path "
-            "in Preferences > Add-ons > photongrid, or clear it to use photongrid on PATH"
+            "in Preferences > Add-ons > photongrid, or clear it to use the one the add-on carries"
         )
     from_env = (env.get(ENV_VAR) or "").strip()
     if from_env:
         found = _executable(os.path.abspath(os.path.expanduser(from_env)))
+        if found:
+            return found
+    if bundled:
+        found = bundled_binary(bundled)
         if found:
             return found
     on_path = shutil.which(BINARY_NAME, path=env.get("PATH"))
@@ -106,23 +131,258 @@ def find_binary(configured: str = "", env: Optional[dict] = None) -> str:
 
 
 # --------------------------------------------------------------------------------------
+# The settings schema: what the binary says its settings are
+
+
+EMPTY_SCHEMA = {"version": "", "settings": []}
+_schema_memo: dict = {}
+
+
+def _valid_schema(doc) -> bool:
+    return (
+        isinstance(doc, dict)
+        and isinstance(doc.get("settings"), list)
+        and all(isinstance(s, dict) and isinstance(s.get("key"), str) for s in doc["settings"])
+    )
+
+
+def schema_from_binary(binary: str, cache_dir: Optional[str] = None, timeout: float = 30.0) -> dict:
+    """``photongrid settings --schema`` of ``binary``, run once per binary (same path, size and
+    modification time) and cached in memory and, if given, in ``cache_dir``."""
+    try:
+        st = os.stat(binary)
+    except OSError as e:
+        raise PhotongridError(f"cannot read {binary}: {e}") from e
+    identity = f"{os.path.realpath(binary)}|{st.st_size}|{st.st_mtime_ns}"
+    if identity in _schema_memo:
+        return _schema_memo[identity]
+    cache_file = None
+    if cache_dir:
+        cache_file = os.path.join(cache_dir, "schema-" + hashlib.sha1(identity.encode()).hexdigest()[:16] + ".json")
+        try:
+            with open(cache_file, encoding="utf-8") as f:
+                doc = json.load(f)
+            if _valid_schema(doc):
+                _schema_memo[identity] = doc
+                return doc
+        except (OSError, ValueError):
+            pass
+    try:
+        run = subprocess.run([binary, "settings", "--schema"], capture_output=True, text=True, timeout=timeout,
+                             stdin=subprocess.DEVNULL)
+    except (OSError, subprocess.TimeoutExpired) as e:
+        raise PhotongridError(f"{binary} settings --schema failed: {e}") from e
+    try:
+        doc = json.loads(run.stdout) if run.returncode == 0 else None
+    except ValueError:
+        doc = None
+    if not _valid_schema(doc):
+        detail = (run.stderr or run.stdout).strip().splitlines()[-1:] or [f"exit code {run.returncode}"]
+        raise PhotongridError(f"{binary} settings --schema gave no settings schema: {detail[0]}")
+    _schema_memo[identity] = doc
+    if cache_file:
+        try:
+            os.makedirs(cache_dir, exist_ok=True)
+            tmp = f"{cache_file}.{os.getpid()}.tmp"
+            with open(tmp, "w", encoding="utf-8") as f:
+                json.dump(doc, f)
+            os.replace(tmp, cache_file)
+        except OSError:
+            pass
+    return doc
+
+
+def bundled_schema(path: str = BUNDLED_SCHEMA) -> Optional[dict]:
+    """The schema written into the extension beside its binary, or None."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            doc = json.load(f)
+    except (OSError, ValueError):
+        return None
+    return doc if _valid_schema(doc) else None
+
+
+# The panel: which settings each section shows, in order, with the label an artist reads. Their
+# tooltips, defaults and choices come from the schema; settings not named here are listed
+# under "Advanced". Width and height are Blender's resolution; passes and time are the
+# Sampling section's own properties (0 meaning "not set").
+SECTIONS = {
+    "SAMPLING": ("spp", "seed"),
+    "PHOTONS": ("photons", "caustic_photons", "neighbours", "max_photon_depth"),
+    "LIGHT_PATHS": ("direct", "gather", "light_samples", "max_depth", "max_specular_depth", "split_depth"),
+    "METHOD": ("method", "grid"),
+}
+NOT_PROPERTIES = ("width", "height", "passes", "time")
+LABELS = {
+    "spp": "Samples per Pass",
+    "seed": "Seed",
+    "photons": "Photons",
+    "caustic_photons": "Caustic Photons",
+    "neighbours": "Neighbours",
+    "max_photon_depth": "Photon Bounces",
+    "direct": "Direct Light",
+    "gather": "Gather Rays",
+    "light_samples": "Light Samples",
+    "max_depth": "Max Bounces",
+    "max_specular_depth": "Specular Bounces",
+    "split_depth": "Glass Split Depth",
+    "method": "Estimator",
+    "grid": "Grid Mode",
+}
+CHOICE_LABELS = {
+    "knn": "kNN",
+    "sppm": "SPPM",
+    "cdf53": "CDF 5/3",
+    "cdf97": "CDF 9/7",
+}
+
+
+@dataclasses.dataclass
+class PropertySpec:
+    """One setting as a Blender property: ``kind`` is INT, FLOAT, BOOL, ENUM or STRING; enum
+    items are ``(value, label, description)`` with the CLI's value as identifier."""
+
+    key: str
+    flag: str
+    kind: str
+    default: object
+    label: str
+    description: str
+    section: str
+    items: list = dataclasses.field(default_factory=list)
+
+
+def _tooltip(text) -> str:
+    text = " ".join(str(text or "").split())
+    return text if not text or text.endswith(".") else text + "."
+
+
+def _label(key: str) -> str:
+    return LABELS.get(key) or key.replace("_", " ").title()
+
+
+def property_specs(schema: dict) -> list:
+    """The panel's properties, from the binary's schema (settings it does not know are not
+    shown; settings the panel does not place are in section ADVANCED)."""
+    section_of = {k: name for name, keys in SECTIONS.items() for k in keys}
+    order = {k: i for i, k in enumerate(k for keys in SECTIONS.values() for k in keys)}
+    specs = []
+    for s in schema.get("settings", []):
+        key = s["key"]
+        if key in NOT_PROPERTIES:
+            continue
+        kind = {"integer": "INT", "number": "FLOAT", "boolean": "BOOL", "choice": "ENUM"}.get(s.get("type"), "STRING")
+        default = s.get("default")
+        items = []
+        if kind == "ENUM":
+            items = [
+                (c["value"], CHOICE_LABELS.get(c["value"], c["value"].replace("-", " ").title()), _tooltip(c.get("help")))
+                for c in s.get("choices", [])
+            ]
+            if not items:
+                kind = "STRING"
+        if default is None:  # an optional setting the panel has no place for: text, passed when set
+            kind, default = "STRING", ""
+        if kind == "INT" and not (isinstance(default, int) and 0 <= default < 2**31):
+            kind, default = "STRING", str(default)
+        specs.append(PropertySpec(
+            key=key,
+            flag=s.get("flag") or "--" + key.replace("_", "-"),
+            kind=kind,
+            default=default,
+            label=_label(key),
+            description=_tooltip(s.get("help")),
+            section=section_of.get(key, "ADVANCED"),
+            items=items,
+        ))
+    specs.sort(key=lambda sp: (sp.section == "ADVANCED", order.get(sp.key, len(order)), sp.key))
+    return specs
+
+
+def schema_help(schema: dict, key: str) -> str:
+    """A setting's help text from the schema (tooltips of the properties the panel defines
+    itself: passes, time)."""
+    for s in schema.get("settings", []):
+        if s.get("key") == key:
+            return _tooltip(s.get("help"))
+    return ""
+
+
+# Quality presets: multiples of the binary's defaults (Default is the defaults themselves).
+QUALITY_PRESETS = (
+    ("PREVIEW", "Preview", "Fast look: an eighth of the default photons, 1 sample and half the gather rays per pass"),
+    ("DEFAULT", "Default", "The renderer's defaults"),
+    ("HIGH", "High", "Twice the default photons, caustic photons and samples per pass"),
+)
+
+
+def quality_values(preset: str, defaults: dict) -> dict:
+    """The values a quality preset sets, from the settings' ``defaults`` (key → value)."""
+    scale = {
+        "PREVIEW": {"photons": 1 / 8, "caustic_photons": 1 / 8, "spp": None, "gather": 1 / 2},
+        "DEFAULT": {"photons": 1, "caustic_photons": 1, "spp": 1, "gather": 1},
+        "HIGH": {"photons": 2, "caustic_photons": 2, "spp": 2, "gather": 1},
+    }[preset]
+    out = {}
+    for key, factor in scale.items():
+        d = defaults.get(key)
+        if not isinstance(d, int):
+            continue
+        out[key] = 1 if factor is None else max(1 if d > 0 else 0, int(round(d * factor)))
+    return out
+
+
+def same_value(a, b) -> bool:
+    """Equal as settings: floats within Blender's single precision."""
+    if isinstance(a, float) or isinstance(b, float):
+        try:
+            return math.isclose(float(a), float(b), rel_tol=1e-6, abs_tol=1e-9)
+        except (TypeError, ValueError):
+            return False
+    return a == b
+
+
+def _flag_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return f"{value:.7g}"
+    return str(value)
+
+
+# --------------------------------------------------------------------------------------
 # Settings and the command line
 
 
 @dataclasses.dataclass
 class RenderSettings:
-    """What the panel sets; ``None``/empty means "the CLI's default, not passed"."""
+    """What the panel sets. ``values``: setting key → value, the settings that differ from the
+    binary's defaults (the others are not passed). ``passes`` 0 and ``time_limit`` 0 mean "not
+    set": one pass without a time limit, as many as fit with one."""
 
-    photons: int = 2_000_000
-    neighbours: int = 100
-    spp: int = 4
-    seed: int = 0
-    direct: str = "shadow-rays"  # or "photons"
+    values: dict = dataclasses.field(default_factory=dict)
+    passes: int = 1
+    time_limit: float = 0.0
     threads: Optional[int] = None
-    # Options of future methods: passed only when set.
-    method: str = ""
-    grid: str = ""
-    time_budget: str = ""
+    aovs: bool = False
+    flags: dict = dataclasses.field(default_factory=dict)  # key → flag, when not --key-with-dashes
+
+    @property
+    def progressive(self) -> bool:
+        """More than one pass may run (then each finished pass is shown)."""
+        return self.time_limit > 0 or self.passes > 1
+
+
+def settings_values(specs: Iterable, get: Callable[[str], object]) -> dict:
+    """Key → value of the settings whose value (``get(key)``) differs from the default."""
+    out = {}
+    for sp in specs:
+        value = get(sp.key)
+        if sp.kind == "STRING" and not str(value or "").strip():
+            continue
+        if not same_value(value, sp.default):
+            out[sp.key] = value
+    return out
 
 
 def build_command(
@@ -135,8 +395,6 @@ def build_command(
     settings: RenderSettings,
 ) -> list:
     """The ``photongrid render`` command for one camera (by glTF node name)."""
-    if settings.direct not in ("shadow-rays", "photons"):
-        raise PhotongridError(f"direct lighting must be 'shadow-rays' or 'photons', not '{settings.direct}'")
     cmd = [binary, "render", scene_path]
     if camera:
         # "--camera=NAME" so that a name starting with "-" is not taken for an option.
@@ -145,23 +403,23 @@ def build_command(
         f"--output={output}",
         "--width", str(int(width)),
         "--height", str(int(height)),
-        "--photons", str(int(settings.photons)),
-        "--neighbours", str(int(settings.neighbours)),
-        "--spp", str(int(settings.spp)),
-        "--seed", str(int(settings.seed)),
-        "--direct", settings.direct,
         "--progress", "json",
     ]
+    for key, value in settings.values.items():
+        flag = settings.flags.get(key) or "--" + key.replace("_", "-")
+        cmd.append(f"{flag}={_flag_value(value)}")
+    if settings.time_limit and settings.time_limit > 0:
+        cmd.append(f"--time={settings.time_limit:g}")
+        if settings.passes and settings.passes > 0:
+            cmd.append(f"--passes={int(settings.passes)}")
+    elif settings.passes and settings.passes > 1:
+        cmd.append(f"--passes={int(settings.passes)}")
+    if settings.progressive:
+        cmd.append("--checkpoint=0")  # the image after every pass, for the render window
+    if settings.aovs:
+        cmd.append("--aovs")
     if settings.threads:
         cmd += ["--threads", str(int(settings.threads))]
-    for flag, value in (
-        ("--method", settings.method),
-        ("--grid", settings.grid),
-        ("--time-budget", settings.time_budget),
-    ):
-        value = (value or "").strip()
-        if value:
-            cmd.append(f"{flag}={value}")
     return cmd
 
 
@@ -185,23 +443,84 @@ def parse_event(line) -> Optional[dict]:
     return value
 
 
-class ProgressTracker:
-    """Turns events into (phase name, overall fraction in [0, 1], never going back)."""
+# The phases before the passes, and those of each pass (every pass starts with "photons").
+SETUP_PHASES = ("load", "bvh")
+# Shares of the first pass's time per phase, before any pass has been timed; later passes are
+# weighted by the previous pass's measured times.
+FIRST_PASS_WEIGHTS = {"photons": 0.35, "irradiance": 0.20, "grids": 0.05, "build": 0.05, "render": 0.35}
+SETUP_SHARE = 0.04  # load and BVH, of the whole bar
+FINISH_SHARE = 0.02  # reading the image into Blender, after the last event
 
-    def __init__(self, weights: Optional[dict] = None):
-        self.weights = dict(PHASE_WEIGHTS if weights is None else weights)
-        self.finished: set = set()
+
+def expected_phases(values: dict, defaults: dict) -> set:
+    """The phases of one pass for these settings (``values`` over ``defaults``): irradiance with
+    final gathering (not SPPM), grids for the grid-based estimators."""
+    method = values.get("method", defaults.get("method"))
+    gather = values.get("gather", defaults.get("gather", 0))
+    phases = {"photons", "build", "render"}
+    if gather and method != "sppm":
+        phases.add("irradiance")
+    if method in ("adaptive", "multiscale"):
+        phases.add("grids")
+    return phases
+
+
+class ProgressTracker:
+    """Turns events into a status text and an overall fraction in [0, 1] that never goes back.
+
+    The bar covers setup (load, BVH), every pass and the final read. ``passes`` is the pass
+    count asked for (with ``time_limit`` > 0 the passes run until the time is used, ``passes``
+    then being at most that many, 0 for no limit). Within a pass each phase weighs what it took
+    in the previous pass (the first pass: ``FIRST_PASS_WEIGHTS``); phases that report no
+    progress of their own (irradiance, grids, the index) advance with time against their
+    expected duration. ``clock`` is for tests.
+    """
+
+    def __init__(self, passes: int = 1, time_limit: float = 0.0, phases: Optional[Iterable[str]] = None,
+                 clock: Callable[[], float] = time.monotonic):
+        self.passes = max(int(passes or 0), 0)
+        self.time_limit = float(time_limit or 0.0)
+        if self.time_limit <= 0 and self.passes < 1:
+            self.passes = 1
+        self.clock = clock
+        weights = {p: w for p, w in FIRST_PASS_WEIGHTS.items() if phases is None or p in set(phases)}
+        self.first_weights = weights or dict(FIRST_PASS_WEIGHTS)
+        self.setup_done: set = set()
+        self.started: Optional[float] = None  # the first event: about when the renderer started
+        self.pass_index = -1  # the pass running (0-based), -1 before the first
+        self.pass_start = 0.0
+        self.current: dict = {}  # phase → seconds in the running pass
+        self.previous: Optional[dict] = None  # phase → seconds in the last finished pass
         self.phase: Optional[str] = None
+        self.phase_total = 0
         self.phase_fraction = 0.0
+        self.phase_start = 0.0
+        self.camera: Optional[str] = None
+        self.finished = False
         self.fraction = 0.0
 
-    def update(self, event: dict) -> bool:
-        """Take one event; True when the phase or the fraction changed."""
+    # -- events
+
+    def update(self, event: dict, now: Optional[float] = None) -> bool:
+        """Take one event; True when the status or the fraction changed."""
+        now = self.clock() if now is None else now
+        if self.started is None:
+            self.started = now
+        before = (self.status, self.fraction)
         kind = event.get("event")
         phase = event.get("phase")
-        before = (self.phase, self.fraction)
         if kind == "start" and phase:
-            self.phase, self.phase_fraction = phase, 0.0
+            if phase == "photons":
+                if self.pass_index >= 0:
+                    self.previous = dict(self.current)
+                self.pass_index += 1
+                self.pass_start = now
+                self.current = {}
+            self.phase, self.phase_start, self.phase_fraction = phase, now, 0.0
+            try:
+                self.phase_total = int(event.get("total") or 0)
+            except (TypeError, ValueError):
+                self.phase_total = 0
         elif kind == "progress" and phase:
             self.phase = phase
             try:
@@ -210,15 +529,122 @@ class ProgressTracker:
                 f = 0.0
             self.phase_fraction = min(max(f, 0.0), 1.0)
         elif kind == "end" and phase:
-            self.finished.add(phase)
+            try:
+                seconds = max(float(event.get("seconds") or 0.0), 0.0)
+            except (TypeError, ValueError):
+                seconds = 0.0
+            if phase in SETUP_PHASES and self.pass_index < 0:
+                self.setup_done.add(phase)
+            else:
+                self.current[phase] = self.current.get(phase, 0.0) + seconds
             self.phase, self.phase_fraction = phase, 1.0
-        else:
+        elif kind == "camera":
+            self.camera = event.get("camera")
+        elif kind in ("output", "done"):
+            self.finished = True
+        elif kind != "checkpoint":
             return False
-        done = sum(self.weights.get(p, 0.0) for p in self.finished)
-        if self.phase and self.phase not in self.finished:
-            done += self.weights.get(self.phase, 0.0) * self.phase_fraction
-        self.fraction = max(self.fraction, min(done, 1.0))
-        return (self.phase, self.fraction) != before
+        self._recompute(now)
+        return (self.status, self.fraction) != before
+
+    def tick(self, now: Optional[float] = None) -> bool:
+        """Advance phases that report no progress with time; True when the fraction changed."""
+        if self.started is None:
+            return False
+        before = self.fraction
+        self._recompute(self.clock() if now is None else now)
+        return self.fraction != before
+
+    # -- the numbers
+
+    @property
+    def status(self) -> str:
+        if self.phase is None:
+            return "starting"
+        if self.pass_index < 0 or (self.passes == 1 and self.time_limit <= 0):
+            return self.phase
+        total = f"/{self.passes}" if self.passes and self.time_limit <= 0 else ""
+        return f"pass {self.pass_index + 1}{total} · {self.phase}"
+
+    def _weights(self) -> dict:
+        if self.previous:
+            total = sum(self.previous.values())
+            if total > 0:
+                return {p: s / total for p, s in self.previous.items()}
+        total = sum(self.first_weights.values())
+        return {p: w / total for p, w in self.first_weights.items()}
+
+    def _expected_seconds(self, phase: str) -> Optional[float]:
+        if self.previous and self.previous.get(phase):
+            return self.previous[phase]
+        # The first pass: in proportion to the photon phase, once that has been timed.
+        photons = self.current.get("photons")
+        w = self.first_weights.get(phase)
+        if photons and w and self.first_weights.get("photons"):
+            return photons * w / self.first_weights["photons"]
+        return None
+
+    def pass_fraction(self, now: float) -> float:
+        """How much of the running pass is done."""
+        if self.pass_index < 0:
+            return 0.0
+        w = self._weights()
+        done = sum(w.get(p, 0.0) for p in self.current)
+        phase = self.phase
+        if phase and phase not in self.current and phase not in SETUP_PHASES:
+            share = w.get(phase, 0.0)
+            if self.phase_total > 0:
+                done += share * self.phase_fraction
+            else:
+                expected = self._expected_seconds(phase)
+                if expected:
+                    done += share * min(0.95, max(0.0, now - self.phase_start) / expected)
+        return min(max(done, 0.0), 1.0)
+
+    def _recompute(self, now: float) -> None:
+        if self.finished:
+            self.fraction = max(self.fraction, 1.0 - FINISH_SHARE)
+            return
+        setup = SETUP_SHARE * (1.0 if self.pass_index >= 0 else len(self.setup_done) / len(SETUP_PHASES))
+        body = 0.0
+        if self.pass_index >= 0:
+            f = self.pass_fraction(now)
+            done = self.pass_index + f  # passes done, with the running one's share
+            by_passes = done / self.passes if self.passes else 0.0
+            by_time = 0.0
+            if self.time_limit > 0:
+                elapsed = now - self.started
+                in_pass = now - self.pass_start
+                # When this pass is expected to end (the first may overrun the limit).
+                if f > 0.02:
+                    end = (self.pass_start - self.started) + in_pass / f
+                elif self.previous:
+                    end = (self.pass_start - self.started) + sum(self.previous.values())
+                else:
+                    end = math.inf
+                by_time = elapsed / max(self.time_limit, end)
+            body = max(by_passes, by_time)
+        total = setup + (1.0 - SETUP_SHARE - FINISH_SHARE) * min(body, 1.0)
+        self.fraction = max(self.fraction, min(total, 1.0 - FINISH_SHARE))
+
+    def stop_grace(self, now: Optional[float] = None) -> float:
+        """Seconds to wait, after asking the renderer to stop, for the running pass to end and
+        its image to be written: the pass's expected remainder with a margin, at least 5 s and
+        at most 60 s or three times the last pass."""
+        now = self.clock() if now is None else now
+        if self.pass_index < 0:
+            return 30.0
+        f = self.pass_fraction(now)
+        in_pass = now - self.pass_start
+        remaining = in_pass * (1.0 - f) / f if f > 0.02 else None
+        last = sum(self.previous.values()) if self.previous else None
+        if last is not None:
+            # Early in a pass its fraction says little (the photon phase is quick, the ones
+            # after it long): the previous pass's length is the better guide.
+            remaining = max(remaining or 0.0, last - in_pass)
+        if remaining is None:
+            return 60.0
+        return min(max(60.0, 3.0 * (last or 0.0)), max(5.0, 1.5 * remaining + 5.0))
 
 
 # --------------------------------------------------------------------------------------
@@ -228,14 +654,15 @@ class ProgressTracker:
 @dataclasses.dataclass
 class ProcessResult:
     returncode: Optional[int]
-    cancelled: bool
+    cancelled: bool  # a stop was asked for (Esc)
     error: Optional[str]  # the CLI's message when it failed
     outputs: list  # paths from "output" events
     log: list  # stderr lines that were not JSON events
 
     @property
     def ok(self) -> bool:
-        return not self.cancelled and self.returncode == 0
+        """The renderer finished and wrote its image (after a stop request too)."""
+        return self.returncode == 0 and self.error is None
 
 
 def _reader(stream, sink: "queue.Queue") -> None:
@@ -266,6 +693,18 @@ def stop_process(proc: subprocess.Popen, grace_seconds: float = 3.0) -> None:
         proc.wait()
 
 
+def request_stop(proc: subprocess.Popen) -> bool:
+    """Ask the renderer to stop after its current pass and write the image so far (SIGINT);
+    False where that cannot be asked (Windows), and the caller stops it outright."""
+    if os.name == "nt" or proc.poll() is not None:
+        return False
+    try:
+        proc.send_signal(signal.SIGINT)
+        return True
+    except OSError:
+        return False
+
+
 def run_process(
     cmd: list,
     on_event: Optional[Callable[[dict], None]] = None,
@@ -274,8 +713,15 @@ def run_process(
     poll_interval: float = 0.05,
     grace_seconds: float = 3.0,
     on_start: Optional[Callable[[subprocess.Popen], None]] = None,
+    stop_seconds: Optional[Callable[[], float]] = None,
+    on_tick: Optional[Callable[[], None]] = None,
 ) -> ProcessResult:
-    """Run ``cmd``; ``on_event`` and ``should_cancel`` are called on this thread only."""
+    """Run ``cmd``; ``on_event``, ``should_cancel`` and ``on_tick`` are called on this thread only.
+
+    When ``should_cancel()`` turns true the renderer is asked to stop after its current pass
+    (``request_stop``) and given ``stop_seconds()`` seconds (default 0: none) to write its image
+    and exit; then it is terminated (and killed after ``grace_seconds``).
+    """
     kwargs = {}
     if os.name == "nt":
         kwargs["creationflags"] = getattr(subprocess, "CREATE_NO_WINDOW", 0)
@@ -296,6 +742,7 @@ def run_process(
     reader.start()
     outputs, log, errors = [], [], []
     cancelled = False
+    deadline = None
     eof = False
 
     def drain(block_seconds: float) -> None:
@@ -328,8 +775,17 @@ def run_process(
     try:
         while proc.poll() is None:
             drain(poll_interval)
-            if should_cancel and should_cancel():
+            if on_tick:
+                on_tick()
+            if not cancelled and should_cancel and should_cancel():
                 cancelled = True
+                wait = float(stop_seconds()) if stop_seconds else 0.0
+                if wait > 0 and request_stop(proc):
+                    deadline = time.monotonic() + wait
+                else:
+                    stop_process(proc, grace_seconds)
+                    break
+            if deadline is not None and time.monotonic() > deadline:
                 stop_process(proc, grace_seconds)
                 break
         # The process has exited: read what is left of stderr.
@@ -350,14 +806,13 @@ def run_process(
                 pass
     rc = proc.returncode
     error = None
-    if not cancelled and rc != 0:
+    if rc != 0 and not cancelled:
         if errors:
             error = errors[-1]
         else:
             tail = [l for l in log if l.lower().startswith("error")] or log[-5:]
             error = "\n".join(tail) if tail else f"exited with code {rc}"
     return ProcessResult(returncode=rc, cancelled=cancelled, error=error, outputs=outputs, log=log)
-
 
 # --------------------------------------------------------------------------------------
 # Export with Blender's glTF exporter
@@ -466,12 +921,12 @@ def _import_oiio():
         return None
 
 
-def read_exr_rgba(path: str, width: int, height: int):
-    """The EXR's pixels as a flat float32 RGBA array, bottom row first (Blender's order).
+def read_exr_channels(path: str, width: int, height: int) -> dict:
+    """The EXR's channels by name (``R``, ``A``, ``Depth.Z``, ...), each a float32 array of
+    shape (height, width), bottom row first (Blender's order).
 
-    The file's floats are kept as they are (scene-linear radiance, like the CLI's output);
-    alpha is 1 where the file has none. Reads with OpenImageIO when it can, else through
-    ``bpy.data.images`` (a temporary image, removed again).
+    Reads with OpenImageIO when it can; else through ``bpy.data.images`` (a temporary image,
+    removed again), which gives ``R``, ``G``, ``B`` and ``A`` only.
     """
     import numpy as np
 
@@ -487,17 +942,11 @@ def read_exr_rgba(path: str, width: int, height: int):
             inp.close()
         if pixels is None:
             raise PhotongridError(f"cannot read {path}: {oiio.geterror()}")
-        pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
-        names = list(spec.channelnames)
         if (spec.width, spec.height) != (width, height):
             raise PhotongridError(f"{path} is {spec.width}×{spec.height}, expected {width}×{height}")
-        rgba = np.ones((height, width, 4), dtype=np.float32)
-        for i, c in enumerate("RGBA"):
-            if c in names:
-                rgba[..., i] = pixels[..., names.index(c)]
-            elif c != "A":
-                raise PhotongridError(f"{path} has no channel {c} (channels: {', '.join(names)})")
-        return np.ascontiguousarray(rgba[::-1]).ravel()  # EXR: top row first
+        pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
+        # EXR: top row first.
+        return {name: np.ascontiguousarray(pixels[::-1, :, i]) for i, name in enumerate(spec.channelnames)}
 
     import bpy
 
@@ -507,9 +956,60 @@ def read_exr_rgba(path: str, width: int, height: int):
             raise PhotongridError(f"{path} is {img.size[0]}×{img.size[1]}, expected {width}×{height}")
         flat = np.empty(width * height * 4, dtype=np.float32)
         img.pixels.foreach_get(flat)  # already bottom row first
-        return flat
+        rgba = flat.reshape(height, width, 4)
+        return {c: np.ascontiguousarray(rgba[..., i]) for i, c in enumerate("RGBA")}
     finally:
         bpy.data.images.remove(img)
+
+
+def read_exr_rgba(path: str, width: int, height: int, alpha: bool = False):
+    """The EXR's pixels as a flat float32 RGBA array, bottom row first (Blender's order).
+
+    The file's floats are kept as they are (scene-linear radiance, like the CLI's output).
+    Alpha is the file's ``A`` (coverage: 0 where the camera saw only background) when ``alpha``
+    is true, else 1 (Blender's opaque film).
+    """
+    import numpy as np
+
+    channels = read_exr_channels(path, width, height)
+    rgba = np.ones((height, width, 4), dtype=np.float32)
+    for i, c in enumerate("RGB"):
+        if c not in channels:
+            raise PhotongridError(f"{path} has no channel {c} (channels: {', '.join(channels)})")
+        rgba[..., i] = channels[c]
+    if alpha and "A" in channels:
+        rgba[..., 3] = channels["A"]
+    return rgba.ravel()
+
+
+# Blender's passes and the EXR channels (``photongrid render --aovs``) that fill them:
+# (pass name, channel ids, type, EXR channels, the view layer's switch). Normals are converted
+# from the file's glTF world (Y up) to Blender's (Z up): Blender (x, y, z) = glTF (x, -z, y).
+PASSES = (
+    ("Depth", "Z", "VALUE", ("Depth.Z",), "use_pass_z"),
+    ("Normal", "XYZ", "VECTOR", ("Normal.X", "Normal.Y", "Normal.Z"), "use_pass_normal"),
+    ("DiffCol", "RGB", "COLOR", ("DiffCol.R", "DiffCol.G", "DiffCol.B"), "use_pass_diffuse_color"),
+    ("Photon Density", "X", "VALUE", ("PhotonDensity.X",), "use_pass_photon_density"),
+    ("Photon Radius", "X", "VALUE", ("PhotonRadius.X",), "use_pass_photon_radius"),
+)
+
+
+def pass_pixels(channels: dict, name: str):
+    """The flat float32 pixels of Blender pass ``name`` from the EXR's ``channels``, or None
+    when the file lacks them."""
+    import numpy as np
+
+    for pass_name, _ids, _kind, exr, _switch in PASSES:
+        if pass_name != name:
+            continue
+        if not all(c in channels for c in exr):
+            return None
+        planes = [channels[c] for c in exr]
+        if pass_name == "Normal":
+            x, y, z = planes
+            planes = [x, -z, y]
+        return np.ascontiguousarray(np.stack(planes, axis=-1), dtype=np.float32).ravel()
+    return None
 
 
 def render_size(scene) -> tuple:
@@ -519,23 +1019,30 @@ def render_size(scene) -> tuple:
     return max(1, int(r.resolution_x * pct / 100)), max(1, int(r.resolution_y * pct / 100))
 
 
-def settings_from_scene(scene) -> RenderSettings:
-    """The panel's settings (``scene.photongrid``) and Blender's thread count."""
+def settings_from_scene(scene, specs: Iterable = (), aovs: bool = False) -> RenderSettings:
+    """The panel's settings (``scene.photongrid``, described by ``specs``) and Blender's thread
+    count."""
+    specs = list(specs)
     props = getattr(scene, "photongrid", None)
-    s = RenderSettings()
+    s = RenderSettings(aovs=aovs)
     if props is not None:
-        s.photons = int(props.photons)
-        s.neighbours = int(props.neighbours)
-        s.spp = int(props.spp)
-        s.seed = int(props.seed)
-        s.direct = "photons" if props.direct == "PHOTONS" else "shadow-rays"
-        s.method = "" if props.method == "DEFAULT" else props.method.lower()
-        s.grid = "" if props.grid == "DEFAULT" else props.grid.lower()
-        s.time_budget = props.time_budget
+        present = [sp for sp in specs if hasattr(props, sp.key)]
+        s.values = settings_values(present, lambda k: getattr(props, k))
+        s.flags = {sp.key: sp.flag for sp in present}
+        s.passes = int(getattr(props, "passes", 1))
+        s.time_limit = float(getattr(props, "time_limit", 0.0))
     r = scene.render
     if getattr(r, "threads_mode", "AUTO") == "FIXED":
         s.threads = int(r.threads)
     return s
+
+
+@dataclasses.dataclass
+class RunResult:
+    path: str  # the final image
+    passes: Optional[int]  # passes in it, when the renderer said
+    stopped: bool  # Esc ended the render early (after a pass)
+    warnings: list
 
 
 def run_photongrid(
@@ -549,12 +1056,19 @@ def run_photongrid(
     on_progress: Optional[Callable[[float], None]] = None,
     should_cancel: Optional[Callable[[], bool]] = None,
     on_start: Optional[Callable[[subprocess.Popen], None]] = None,
+    on_checkpoint: Optional[Callable[[str, int], None]] = None,
+    on_warning: Optional[Callable[[str], None]] = None,
     grace_seconds: float = 3.0,
-) -> str:
-    """Export ``scene`` into ``workdir``, render its camera with photongrid, return the EXR's path.
+    phases: Optional[Iterable[str]] = None,
+) -> RunResult:
+    """Export ``scene`` into ``workdir``, render its camera with photongrid, return the image.
 
     ``camera``: the glTF node name (the camera object's name), default the scene's camera.
-    Raises ``Cancelled`` when ``should_cancel`` said so, ``PhotongridError`` on failure.
+    ``on_checkpoint(path, passes)`` gets the image after every pass but the last (progressive
+    settings); ``on_warning`` every warning (approximated materials). Esc (``should_cancel``)
+    asks the renderer to stop after its current pass, which then writes that image: the result
+    says ``stopped``. Raises ``Cancelled`` when the render was stopped with no image, and
+    ``PhotongridError`` on failure.
     """
     settings = settings or settings_from_scene(scene)
     if camera is None:
@@ -573,12 +1087,39 @@ def run_photongrid(
         raise Cancelled("cancelled")
 
     cmd = build_command(binary, glb, camera, out, width, height, settings)
-    tracker = ProgressTracker()
+    tracker = ProgressTracker(passes=settings.passes, time_limit=settings.time_limit, phases=phases)
+    warnings, passes = [], [None]
+    stopping = [False]
+
+    def show():
+        prefix = "photongrid: stopping after this pass · " if stopping[0] else "photongrid: "
+        status(prefix + tracker.status)
+        progress(tracker.fraction)
 
     def on_event(event: dict) -> None:
+        kind = event.get("event")
+        if kind == "warning":
+            message = str(event.get("message", ""))
+            warnings.append(message)
+            if on_warning:
+                on_warning(message)
+        elif kind == "checkpoint" and event.get("path") and on_checkpoint:
+            on_checkpoint(str(event["path"]), int(event.get("passes") or 0))
+        elif kind in ("output", "done") and event.get("passes") is not None:
+            passes[0] = int(event["passes"])
         if tracker.update(event):
-            status(f"photongrid: {tracker.phase}")
-            progress(tracker.fraction)
+            show()
+
+    def on_tick() -> None:
+        if tracker.tick():
+            show()
+
+    def cancel() -> bool:
+        if should_cancel and should_cancel():
+            stopping[0] = True
+            show()
+            return True
+        return False
 
     def on_log(line: str) -> None:
         print(f"photongrid: {line}", file=sys.stderr)
@@ -586,17 +1127,18 @@ def run_photongrid(
     result = run_process(
         cmd,
         on_event=on_event,
-        should_cancel=should_cancel,
+        should_cancel=cancel,
         on_log=on_log,
         grace_seconds=grace_seconds,
         on_start=on_start,
+        stop_seconds=tracker.stop_grace,
+        on_tick=on_tick,
     )
-    if result.cancelled:
+    path = result.outputs[-1] if result.outputs else out
+    if result.cancelled and not (result.ok and result.outputs):
         raise Cancelled("cancelled")
     if not result.ok:
         raise PhotongridError(f"photongrid failed: {result.error}")
-    path = result.outputs[-1] if result.outputs else out
     if not os.path.isfile(path):
         raise PhotongridError(f"photongrid finished but wrote no image at {path}")
-    progress(1.0)
-    return path
+    return RunResult(path=path, passes=passes[0], stopped=result.cancelled, warnings=warnings)

@@ -99,6 +99,9 @@ pub fn render(
                         let (o, d, mut rng) = camera_ray(camera, settings, &strata, x, y, s);
                         let mut aov = (s == 0).then_some(&mut aovs[x]);
                         sum += tracer.radiance(o, d, 0, &mut rng, &mut aov);
+                        if s == 0 {
+                            aovs[x].depth *= d.dot(camera.forward()); // along the axis, see Aov
+                        }
                     }
                     row[x] = sum / spp as f32;
                 }

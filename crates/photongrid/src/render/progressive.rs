@@ -104,6 +104,8 @@ pub enum Stop {
     Passes,
     /// The next pass would have overrun the time budget.
     Time,
+    /// The caller asked to stop (Esc in Blender, Ctrl+C): the passes done so far are kept.
+    Requested,
 }
 
 /// When a progressive render stops.

@@ -98,6 +98,9 @@ impl SppmFilm {
                             let (o, d, mut rng) = camera_ray(camera, settings, &strata, x, y, s);
                             let aov = (first_pass && s == 0).then_some(&mut aovs[x]);
                             let (le, vp) = tracer.visible_point(o, d, &mut rng, aov);
+                            if first_pass && s == 0 {
+                                aovs[x].depth *= d.dot(camera.forward()); // along the axis, see Aov
+                            }
                             l += le;
                             if let Some(vp) = vp {
                                 tracer.gather_sppm(&mut samples[x * spp as usize + s as usize], &vp);

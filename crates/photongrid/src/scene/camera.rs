@@ -49,6 +49,11 @@ impl Camera {
         (((480.0 * aspect).round() as u32).max(1), 480)
     }
 
+    /// The unit viewing direction (the camera's −Z axis in the world).
+    pub fn forward(&self) -> Vec3 {
+        self.to_world.transform_vector3(Vec3::NEG_Z).normalize()
+    }
+
     /// World-space ray (origin, unit direction) through film position `film` in pixels
     /// (x right, y down) of a `width × height` image.
     pub fn generate_ray(&self, film: Vec2, width: u32, height: u32) -> (Vec3, Vec3) {
