@@ -122,7 +122,7 @@ fn settings_schema_lists_every_setting_with_its_flag_and_default() {
         .iter()
         .map(|c| c["value"].as_str().unwrap())
         .collect();
-    assert_eq!(choices, ["knn", "adaptive", "sppm"]);
+    assert_eq!(choices, ["knn", "adaptive", "sppm", "multiscale"]);
     // The defaults form parses back as settings (the jobs-file form).
     let out = ok(&["settings".into()]);
     let back: Settings = serde_json::from_slice(&out.stdout).unwrap();

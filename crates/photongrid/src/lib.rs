@@ -2,9 +2,10 @@
 //! Watanabe, Fujishiro and Ohno ("Adaptive Photon Mapping with Reference to Grid Structures").
 //!
 //! The modules follow the data: [`scene`] (glTF → triangles, materials, lights, cameras) →
-//! [`accel`] (BVH) → [`photon`] (tracing, storage, neighbour search) → [`estimate`] (radiance
-//! from photons) → [`render`] (camera pass) → [`film`] → [`output`] (EXR/PNG). [`pipeline`]
-//! runs them in order; [`settings`] is the one set of options every front end shares.
+//! [`accel`] (BVH) → [`photon`] (tracing, storage) → [`estimate`] (radiance from photons,
+//! found with the [`spatial`] index) → [`render`] (camera pass) → [`film`] → [`output`]
+//! (EXR/PNG). [`pipeline`] runs them in order; [`settings`] is the one set of options every
+//! front end shares.
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
@@ -21,7 +22,10 @@ pub mod render;
 pub mod sampling;
 pub mod scene;
 pub mod settings;
+pub mod spatial;
 pub mod surface;
+#[cfg(test)]
+pub(crate) mod test_util;
 
 /// Linear RGB in Rec.709 primaries (radiance, flux or reflectance depending on context).
 pub type Rgb = glam::Vec3;

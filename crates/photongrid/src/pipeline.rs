@@ -552,7 +552,7 @@ fn trace_pass(
     let gather = settings.effective_gather();
     let trace = TraceSettings {
         photons: settings.photons,
-        max_depth: settings.max_photon_depth,
+        max_depth: settings.photon_hits(),
         store_direct: settings.direct == DirectLighting::Photons || gather > 0,
         seed: pass_seed(settings.seed, pass),
         record_triangles: needs.photon_triangles,
@@ -577,12 +577,14 @@ fn trace_pass(
     let irradiance = (gather > 0).then(|| {
         let phase = progress.phase("irradiance", 0);
         let _s = tracing::info_span!("irradiance").entered();
-        let all = PhotonMap::build(
-            photons.clone(),
-            settings.gather_neighbours,
-            scene.surface_area(),
-            max_radius,
-        );
+        // A gathered photon's light reaches the camera one bounce later than a photon shown
+        // directly: keep the paths within `max_depth` segments (`Settings::gathered`).
+        let gathered: Vec<Photon> = photons
+            .iter()
+            .filter(|p| settings.gathered(p.depth()))
+            .copied()
+            .collect();
+        let all = PhotonMap::build(gathered, settings.gather_neighbours, scene.surface_area(), max_radius);
         let cache = IrradianceCache::build(
             &all,
             settings.gather_neighbours,

@@ -20,9 +20,17 @@ pub struct Settings {
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Photons", value_parser = parse_count, default_value_t = Settings::default().caustic_photons))]
     #[serde(deserialize_with = "count::deserialize")]
     pub caustic_photons: usize,
-    /// Photon bounces before a path stops.
+    /// Photon bounces before a path stops (a cap on the photon pass alone; `max_depth` limits
+    /// whole light paths).
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Photons", default_value_t = Settings::default().max_photon_depth))]
     pub max_photon_depth: u32,
+    /// Longest light path, in segments from the light to the camera, counted like Mitsuba's
+    /// max_depth (every surface interaction counts, glass and mirrors included; 2: direct light
+    /// only). The references use 12, as does Cycles' default. 0: no limit but
+    /// max-photon-depth. Mirror and glass bounces between the camera and the visible point
+    /// (or on a final-gather ray) are not counted.
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Light paths", default_value_t = Settings::default().max_depth))]
+    pub max_depth: u32,
 
     /// Image width in pixels (default: the camera's aspect at 480 lines).
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Image"))]
@@ -220,6 +228,7 @@ impl Default for Settings {
             photons: 2_000_000,
             caustic_photons: 1_000_000,
             max_photon_depth: 16,
+            max_depth: 12,
             width: None,
             height: None,
             spp: 4,
@@ -291,6 +300,9 @@ impl Settings {
         if self.neighbours == 0 {
             return Err(e("neighbours", "must be at least 1"));
         }
+        if self.max_depth == 1 {
+            return Err(e("max_depth", "must be 0 (no limit) or at least 2 (direct light)"));
+        }
         if self.spp == 0 {
             return Err(e("spp", "must be at least 1"));
         }
@@ -337,6 +349,21 @@ impl Settings {
             }
         }
         Ok(())
+    }
+
+    /// Surface interactions a photon path may have: `max_photon_depth`, and at most
+    /// `max_depth − 1` (light seen at the last one has travelled `max_depth` segments).
+    pub fn photon_hits(&self) -> u32 {
+        match self.max_depth {
+            0 => self.max_photon_depth,
+            d => self.max_photon_depth.min(d.saturating_sub(1)),
+        }
+    }
+
+    /// Whether a photon stored at its `depth`-th interaction may light a visible point through
+    /// one final-gather bounce (the path is then `depth + 2` segments long).
+    pub fn gathered(&self, depth: u32) -> bool {
+        self.max_depth == 0 || depth + 2 <= self.max_depth
     }
 
     /// Final-gather rays actually used: SPPM gathers photons at its visible points itself, so
@@ -439,6 +466,40 @@ mod tests {
         assert_eq!(e.key, "max_radius");
         assert!(e.for_cli().starts_with("--max-radius "), "{}", e.for_cli());
         assert!(e.to_string().starts_with("`max_radius` "), "{e}");
+    }
+
+    #[test]
+    fn path_length_counts_like_mitsuba_max_depth() {
+        // Mitsuba's max_depth 12 (the references): light paths of at most 11 surface
+        // interactions. A photon stored at its 11th is shown directly (11 + 1 segments), one at
+        // its 10th is the last that may be read through a final-gather bounce (10 + 2).
+        let s = Settings::default();
+        assert_eq!(s.max_depth, 12);
+        assert_eq!(s.photon_hits(), 11);
+        assert!(s.gathered(10) && !s.gathered(11));
+        let direct = Settings {
+            max_depth: 2,
+            ..Settings::default()
+        };
+        assert_eq!(direct.photon_hits(), 1);
+        assert!(!direct.gathered(1));
+        let unlimited = Settings {
+            max_depth: 0,
+            max_photon_depth: 40,
+            ..Settings::default()
+        };
+        assert_eq!(unlimited.photon_hits(), 40);
+        assert!(unlimited.gathered(255));
+        assert_eq!(
+            Settings {
+                max_depth: 1,
+                ..Settings::default()
+            }
+            .validate()
+            .unwrap_err()
+            .key,
+            "max_depth"
+        );
     }
 
     #[test]

@@ -764,6 +764,70 @@ fn glass_sphere_neither_creates_nor_loses_energy() {
 }
 
 #[test]
+fn integrating_sphere_photon_flux_and_path_length() {
+    // A 30 W point light at the centre of a closed diffuse sphere (albedo 0.7): every photon
+    // stays inside until absorbed, so the flux arriving on the walls over n interactions is
+    // P (1 − ρⁿ) / (1 − ρ), and the absorbed flux is P when n is unlimited. `max_depth` counts
+    // like the references' Mitsuba (12: photons of at most 11 interactions).
+    let rho = 0.7f64;
+    let mut g = Gltf::new();
+    let wall = g.material(Material::lambert(rho as f32));
+    let room = g.mesh(vec![uv_sphere([0.0; 3], 2.0, 48, 96).material(wall)]);
+    g.root(Node {
+        mesh: Some(room),
+        ..Default::default()
+    });
+    let l = g.light(Light::point(1630.542_4));
+    g.root(Node {
+        light: Some(l),
+        ..Default::default()
+    });
+    let c = g.camera(Camera::Perspective {
+        yfov: 1.0,
+        aspect: None,
+    });
+    g.root(Node {
+        camera: Some(c),
+        transform: Transform::translation([0.0, 0.0, 1.0]),
+        ..Default::default()
+    });
+    let dir = TempDir::new("sphere-room");
+    let scene = photongrid::load(&g.write_glb(dir.path(), "room.glb")).unwrap();
+    let incident = |settings: &Settings| {
+        let mut times = PhaseTimes::default();
+        let prepared = prepare(&scene, settings, &Progress::quiet(), &mut times).unwrap();
+        let mut sum = 0.0f64;
+        let mut deepest = 0;
+        for p in prepared.map.photons() {
+            sum += p.power().x as f64;
+            deepest = deepest.max(p.depth());
+        }
+        (sum, deepest)
+    };
+    let base = Settings {
+        photons: 200_000,
+        direct: DirectLighting::Photons,
+        gather: 0,
+        caustic_photons: 0,
+        ..Settings::default()
+    };
+    let (got, deepest) = incident(&base);
+    let want = 30.0 * (1.0 - rho.powi(11)) / (1.0 - rho);
+    eprintln!("max_depth 12: incident {got:.3} W, closed form {want:.3} W, deepest photon {deepest}");
+    assert_eq!(deepest, 11);
+    assert!((got / want - 1.0).abs() < 0.01, "{got} vs {want}");
+    let unlimited = Settings {
+        max_depth: 0,
+        max_photon_depth: 200,
+        ..base
+    };
+    let (got, _) = incident(&unlimited);
+    let absorbed = got * (1.0 - rho);
+    eprintln!("unlimited: incident {got:.3} W, absorbed {absorbed:.3} W of 30 W");
+    assert!((absorbed / 30.0 - 1.0).abs() < 0.01, "absorbed {absorbed} W of 30 W");
+}
+
+#[test]
 fn same_seed_same_image_whatever_the_thread_count() {
     let scene = photongrid::load(&sample("cornell_glass.glb")).unwrap();
     let settings = Settings {

@@ -73,36 +73,82 @@ pub struct SpecularSample {
     pub weight: Rgb,
     /// True if the ray went through the surface.
     pub transmitted: bool,
+    /// The normal the direction was computed about (the shading normal, or the geometric one
+    /// where the shading normal could not be used), on the incident side.
+    pub normal: Vec3,
+}
+
+/// Veach's adjoint correction for shading normals (Veach 1997, §5.3.2; Mitsuba's particle
+/// tracer applies the same): light (a photon) scattered from direction `wi` (pointing back to
+/// where it came from) into `wo` at a surface whose scattering used the normal `ns`, while the
+/// surface really has the geometric normal `ng`, carries |wi·ns| |wo·ng| / (|wo·ns| |wi·ng|)
+/// times the BSDF weight, so that particle tracing agrees with tracing from the camera through
+/// the same interpolated normals. None where `ns` and `ng` disagree about which side `wi` or `wo`
+/// is on (the path would leak through the surface).
+pub fn adjoint_shading_correction(wi: Vec3, wo: Vec3, ng: Vec3, ns: Vec3) -> Option<f32> {
+    let (i_g, i_s, o_g, o_s) = (wi.dot(ng), wi.dot(ns), wo.dot(ng), wo.dot(ns));
+    if i_g * i_s <= 0.0 || o_g * o_s <= 0.0 {
+        return None;
+    }
+    let c = (i_s * o_g / (o_s * i_g)).abs();
+    c.is_finite().then_some(c)
 }
 
 /// Both branches at a smooth dielectric for a ray `d` hitting a surface with geometric normal
-/// `ng` (any orientation). Returns (reflection, refraction) with Fresnel weights; refraction is
-/// None on total internal reflection (then reflection carries weight 1).
-pub fn dielectric_branches(d: Vec3, ng: Vec3, ior: f32, tint: Rgb) -> (SpecularSample, Option<SpecularSample>) {
+/// `ng` and shading normal `ns` (either orientation; pass `ng` twice for a flat-shaded surface).
+/// Returns (reflection, refraction) with Fresnel weights; refraction is None on total internal
+/// reflection (then reflection carries weight 1).
+///
+/// The geometric normal says which side the ray is on (entering or leaving); the Fresnel
+/// factor and both directions follow the interpolated shading normal, as Blender (Cycles) and
+/// the references do: on a smooth-shaded wavy surface, the facets' constant normals would break
+/// a caustic's continuous filaments into the images of flat facets. Where the shading normal
+/// faces away from the ray, or would send a branch to the wrong side of the real surface
+/// (grazing rays where the normal is bent), the geometric normal is used for both branches.
+pub fn dielectric_branches(
+    d: Vec3,
+    ng: Vec3,
+    ns: Vec3,
+    ior: f32,
+    tint: Rgb,
+) -> (SpecularSample, Option<SpecularSample>) {
     let entering = d.dot(ng) < 0.0;
-    let n = if entering { ng } else { -ng };
+    let n_geo = if entering { ng } else { -ng };
     let eta = if entering { 1.0 / ior } else { ior };
-    let f = fresnel_dielectric(-d.dot(n), eta);
-    let r = SpecularSample {
-        direction: reflect(d, n),
-        weight: Rgb::splat(f),
-        transmitted: false,
-    };
-    match refract(d, n, eta) {
-        Some(t) if f < 1.0 => {
-            // Tint applies once per crossing into or out of the material (Blender's glass colour
-            // tints each passage); with white glass this is 1.
-            let tint = if entering { tint } else { Rgb::ONE };
-            (
+    // Tint applies once per crossing into or out of the material (Blender's glass colour tints
+    // each passage); with white glass this is 1.
+    let tint = if entering { tint } else { Rgb::ONE };
+    let branches = |n: Vec3| {
+        let f = fresnel_dielectric(-d.dot(n), eta);
+        let r = SpecularSample {
+            direction: reflect(d, n),
+            weight: Rgb::splat(f),
+            transmitted: false,
+            normal: n,
+        };
+        match refract(d, n, eta) {
+            Some(t) if f < 1.0 => (
                 r,
                 Some(SpecularSample {
                     direction: t,
                     weight: tint * (1.0 - f),
                     transmitted: true,
+                    normal: n,
                 }),
-            )
+            ),
+            _ => (SpecularSample { weight: Rgb::ONE, ..r }, None),
         }
-        _ => (SpecularSample { weight: Rgb::ONE, ..r }, None),
+    };
+    let n_sh = if ns.dot(n_geo) < 0.0 { -ns } else { ns };
+    if !(n_sh.is_finite() && -d.dot(n_sh) > 0.0) {
+        return branches(n_geo);
+    }
+    let (r, t) = branches(n_sh);
+    let valid = r.direction.dot(n_geo) > 0.0 && t.is_none_or(|t| t.direction.dot(n_geo) < 0.0);
+    if valid {
+        (r, t)
+    } else {
+        branches(n_geo)
     }
 }
 
@@ -113,6 +159,8 @@ pub struct Scatter {
     pub direction: Vec3,
     /// Throughput multiplier.
     pub weight: Rgb,
+    /// The normal the direction was computed about (for the adjoint shading-normal weight).
+    pub normal: Vec3,
 }
 
 /// Beer–Lambert transmittance of the path inside a dielectric that ends at this hit: the ray
@@ -137,6 +185,7 @@ fn fresnel_branches(surface: &Surface, d: Vec3, sp: &SurfacePoint) -> Option<(Sc
     let scatter = |s: SpecularSample| Scatter {
         direction: s.direction,
         weight: s.weight,
+        normal: s.normal,
     };
     match surface {
         Surface::Lambert { .. } | Surface::Gltf(_) => None,
@@ -145,11 +194,12 @@ fn fresnel_branches(surface: &Surface, d: Vec3, sp: &SurfacePoint) -> Option<(Sc
             let r = Scatter {
                 direction: reflect(d, n),
                 weight: fresnel_schlick(*f0, -d.dot(n)),
+                normal: n,
             };
             Some((r, None))
         }
         Surface::Dielectric { ior, tint, .. } => {
-            let (r, t) = dielectric_branches(d, sp.geometric_normal, *ior, *tint);
+            let (r, t) = dielectric_branches(d, sp.geometric_normal, sp.facing_shading_normal, *ior, *tint);
             Some((scatter(r), t.map(scatter)))
         }
     }
@@ -460,7 +510,7 @@ mod tests {
             if d.dot(ng).abs() < 1e-3 {
                 continue;
             }
-            let (r, t) = dielectric_branches(d, ng, 1.5, Rgb::ONE);
+            let (r, t) = dielectric_branches(d, ng, ng, 1.5, Rgb::ONE);
             let total = r.weight.x + t.map(|t| t.weight.x).unwrap_or(0.0);
             assert!((total - 1.0).abs() < 1e-5, "energy {total}");
             assert!((r.direction.length() - 1.0).abs() < 1e-4);
@@ -475,6 +525,59 @@ mod tests {
                 assert!(t.direction.dot(ng) * d.dot(ng) > 0.0, "transmission crosses");
             }
         }
+    }
+
+    #[test]
+    fn dielectric_follows_the_shading_normal_and_stays_on_valid_sides() {
+        let mut rng = Rng::keyed(9, 9, 10);
+        let ng = Vec3::Y;
+        // A shading normal tilted by 1° (the pool slab's wavy top: up to 1.1°).
+        let ns = Vec3::new(1f32.to_radians().sin(), 1f32.to_radians().cos(), 0.0);
+        let mut followed = 0;
+        for _ in 0..20_000 {
+            let d = uniform_sphere(rng.uniform2());
+            if d.dot(ng).abs() < 1e-3 {
+                continue;
+            }
+            let (r, t) = dielectric_branches(d, ng, ns, 1.33, Rgb::ONE);
+            let total = r.weight.x + t.map(|t| t.weight.x).unwrap_or(0.0);
+            assert!((total - 1.0).abs() < 1e-5, "energy {total}");
+            // Reflection stays on the incident side of the real surface, refraction crosses it.
+            assert!(r.direction.dot(ng) * d.dot(ng) < 0.0);
+            if let Some(t) = t {
+                assert!(t.direction.dot(ng) * d.dot(ng) > 0.0);
+            }
+            // Away from grazing, the mirror direction is the one about the shading normal.
+            if d.dot(ng).abs() > 0.2 {
+                let n = if d.dot(ng) < 0.0 { ns } else { -ns };
+                assert!((r.direction - reflect(d, n)).length() < 1e-5);
+                followed += 1;
+            }
+        }
+        assert!(followed > 10_000);
+        // Flat shading (ns = ng) is the plain geometric interface.
+        let d = Vec3::new(0.3, -1.0, 0.1).normalize();
+        let (r, _) = dielectric_branches(d, ng, ng, 1.33, Rgb::ONE);
+        assert!((r.direction - reflect(d, ng)).length() < 1e-6);
+    }
+
+    #[test]
+    fn adjoint_correction_for_shading_normals() {
+        let ng = Vec3::Y;
+        let wi = Vec3::new(0.6, 0.8, 0.0);
+        // Flat shading: no correction, whatever the directions.
+        let wo = Vec3::new(-0.3, -0.9, 0.2).normalize();
+        assert!((adjoint_shading_correction(wi, wo, ng, ng).unwrap() - 1.0).abs() < 1e-6);
+        // Mirror about a tilted shading normal: |wi·ns| = |wo·ns|, so the weight is the ratio of
+        // the geometric cosines (Veach 1997, eq. 5.20).
+        let ns = Vec3::new(0.05, 1.0, 0.0).normalize();
+        let wo = reflect(-wi, ns);
+        let c = adjoint_shading_correction(wi, wo, ng, ns).unwrap();
+        assert!((c - wo.dot(ng).abs() / wi.dot(ng).abs()).abs() < 1e-5, "{c}");
+        // A direction the shading normal puts on the other side than the surface does: leak.
+        let grazing = Vec3::new(-1.0, 0.01, 0.0).normalize();
+        assert!(grazing.dot(ns) < 0.0 && grazing.dot(ng) > 0.0);
+        assert!(adjoint_shading_correction(wi, grazing, ng, ns).is_none());
     }
 
     #[test]

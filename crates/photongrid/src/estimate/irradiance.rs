@@ -3,8 +3,8 @@
 
 use super::density::irradiance;
 use super::photon_map::{PhotonMap, NORMAL_AGREEMENT};
-use crate::photon::neighbours::{KnnBuffer, PointGrid};
 use crate::photon::store::{oct_decode, oct_encode};
+use crate::spatial::{KnnBuffer, PointGrid};
 use crate::Rgb;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -18,7 +18,7 @@ pub struct IrradiancePoint {
     pub irradiance: [f32; 3],
 }
 
-impl crate::photon::neighbours::Positioned for IrradiancePoint {
+impl crate::spatial::Positioned for IrradiancePoint {
     #[inline]
     fn position(&self) -> Vec3 {
         Vec3::from(self.position)
@@ -57,7 +57,7 @@ impl IrradianceCache {
             })
             .collect();
         let n = points.len().max(1);
-        let cell = crate::photon::neighbours::suggest_cell_size(n, surface_area.max(1e-6), 8).min(map.max_radius);
+        let cell = crate::spatial::suggest_cell_size(n, surface_area.max(1e-6), 8).min(map.max_radius);
         IrradianceCache {
             grid: PointGrid::build(points, cell),
             max_radius: map.max_radius,

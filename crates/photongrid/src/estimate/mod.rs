@@ -19,8 +19,8 @@ pub use photon_map::{Gather, PhotonMap, NORMAL_AGREEMENT};
 
 use crate::grid::multiscale::MultiscaleGrids;
 use crate::grid::{GridSample, Grids};
-use crate::photon::neighbours::KnnBuffer;
 use crate::settings::{Method, Settings};
+use crate::spatial::KnnBuffer;
 use density::{assumed_radius, blended_radius, progressive_neighbours};
 use glam::Vec3;
 
@@ -138,6 +138,10 @@ pub enum Estimator<'a> {
         k: usize,
         /// Confidence-interval width in standard deviations.
         gamma: f32,
+        /// Direct light comes from photons (the single-map setting).
+        direct: bool,
+        /// Final gathering is on: near plane edges it supplies indirect light.
+        gathering: bool,
     },
     /// SPPM: each camera sample keeps its own radius ([`sppm::SppmPixel`]); a query gives the
     /// kNN radius that starts it.
@@ -161,6 +165,8 @@ impl<'a> Estimator<'a> {
                 grids: grids.multiscale,
                 k,
                 gamma: settings.ici_threshold,
+                direct: settings.direct == crate::settings::DirectLighting::Photons,
+                gathering: settings.effective_gather() > 0,
             },
             Method::Adaptive => {
                 let (n_all, k) = progressive_neighbours(k, pass);
@@ -186,16 +192,45 @@ impl<'a> Estimator<'a> {
         }
     }
 
-    /// The photons around `q` with the radius the method chooses.
+    /// The photons around `q` with the radius the method chooses, and whether final
+    /// gathering must add indirect light there.
     pub fn gather(&self, q: &Query, buf: &mut KnnBuffer) -> Gather {
+        let mut g = self.gather_photons(q, buf);
+        if !matches!(self, Estimator::Multiscale { .. }) {
+            // The map holds indirect photons only when nothing gathers them.
+            g.needs_gathering = true;
+        }
+        g
+    }
+
+    /// Total irradiance at a final-gather ray's hit read from the grids, where they cover it
+    /// (the multiscale estimate); None: read precomputed irradiance instead.
+    pub fn grid_irradiance(&self, triangle: u32, p: Vec3) -> Option<crate::Rgb> {
+        match *self {
+            Estimator::Multiscale {
+                grids: Some(g), gamma, ..
+            } => g.irradiance(triangle, p, gamma),
+            _ => None,
+        }
+    }
+
+    fn gather_photons(&self, q: &Query, buf: &mut KnnBuffer) -> Gather {
         match *self {
             Estimator::Knn { map, k } | Estimator::Sppm { map, k } => map.knn(q.position, q.facing_normal, k, buf),
-            Estimator::Multiscale { map, grids, k, gamma } => {
-                match grids.and_then(|g| multiscale::gather(g, q, gamma)) {
-                    Some(g) => g,
-                    None => map.knn(q.position, q.facing_normal, k, buf),
-                }
-            }
+            Estimator::Multiscale {
+                map,
+                grids,
+                k,
+                gamma,
+                direct,
+                gathering,
+            } => match grids.and_then(|g| multiscale::gather(g, q, gamma, direct, gathering)) {
+                Some(g) => g,
+                None => Gather {
+                    needs_gathering: gathering,
+                    ..map.knn(q.position, q.facing_normal, k, buf)
+                },
+            },
             Estimator::Adaptive {
                 map,
                 grids,

@@ -2,8 +2,8 @@
 //! subset of a kNN result within a smaller radius.
 
 use super::density::knn_flux_correction;
-use crate::photon::neighbours::{KnnBuffer, PointGrid};
 use crate::photon::Photon;
+use crate::spatial::{KnnBuffer, PointGrid};
 use crate::Rgb;
 use glam::Vec3;
 
@@ -14,7 +14,7 @@ pub const NORMAL_AGREEMENT: f32 = 0.6;
 /// Cell size for a k-neighbour search over photons that may cover only part of the scene
 /// (caustics): the covered area is estimated from the cells a sample of photons occupies.
 fn cell_size_for(photons: &[Photon], k: usize, surface_area: f32) -> f32 {
-    use crate::photon::neighbours::suggest_cell_size;
+    use crate::spatial::suggest_cell_size;
     let n = photons.len().max(1);
     let mut cell = suggest_cell_size(n, surface_area.max(1e-6), k.max(1));
     let stride = (n / 1_000_000).max(1);
@@ -44,6 +44,10 @@ pub struct Gather {
     pub r2: f32,
     /// Photons used.
     pub count: usize,
+    /// True when the estimate leaves out indirect light, which final gathering must then add
+    /// (the methods that show only caustics at visible points when gathering); false when the
+    /// estimate already includes it.
+    pub needs_gathering: bool,
 }
 
 /// The photons of one render, indexed for neighbour queries.
@@ -101,6 +105,7 @@ impl PhotonMap {
             flux,
             r2,
             count: found.len(),
+            needs_gathering: false,
         }
     }
 

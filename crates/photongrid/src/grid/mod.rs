@@ -3,6 +3,7 @@
 //! receivers; from the counts follows the assumed radius of METHOD.md eq. (3).
 
 pub mod multiscale;
+mod noise;
 pub mod planes;
 pub mod textures;
 pub mod voxels;
@@ -139,7 +140,8 @@ impl Grids {
             .zip(on_plane.iter().zip(&receives))
             .filter(|(_, (on, r))| !**on && **r)
             .map(|(t, _)| t.area())
-            .sum();
+            .sum::<f32>()
+            .abs(); // an empty sum is -0.0
         let want_voxels = match mode {
             GridMode::Voxels => true,
             GridMode::Auto => off_plane_area / total_area >= AUTO_VOXEL_MIN_AREA_SHARE,

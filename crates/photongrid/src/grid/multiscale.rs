@@ -87,14 +87,23 @@ impl Level {
     }
 }
 
-/// The layers photons are sorted into: caustics and everything else the estimate shows.
-pub const LAYERS: usize = 2;
+/// The layers photons are sorted into, one per kind, so that the scale chosen for one does not
+/// limit another: caustics ([`CAUSTIC`]), indirect light ([`INDIRECT`]) and direct light
+/// ([`DIRECT`], read by final gathering and the single-map setting).
+pub const LAYERS: usize = 3;
+/// The caustic layer.
+pub const CAUSTIC: usize = 0;
+/// The indirect layer.
+pub const INDIRECT: usize = 1;
+/// The direct layer.
+pub const DIRECT: usize = 2;
 
 /// The layer of a photon kind.
 pub fn layer_of(kind: PhotonKind) -> usize {
     match kind {
-        PhotonKind::Caustic => 0,
-        _ => 1,
+        PhotonKind::Caustic => CAUSTIC,
+        PhotonKind::Indirect => INDIRECT,
+        PhotonKind::Direct => DIRECT,
     }
 }
 
@@ -135,6 +144,12 @@ impl LayerTexture {
     /// Levels, finest first.
     pub fn level_count(&self) -> usize {
         self.levels.len()
+    }
+
+    /// The area a kernel at `level` spans (bilinear weights sum to 1): the covered area of an
+    /// estimate divided by this is below 1 where the kernel reaches past the plane's edge.
+    pub fn kernel_area(&self, level: usize) -> f32 {
+        self.plane.cell_area() * (1u64 << (2 * level)) as f32
     }
 
     /// Kernel sums at `p` on every level, finest first.
@@ -532,7 +547,7 @@ mod tests {
             tri.push(if z > x { 0 } else { 1 });
         }
         let g = MultiscaleGrids::build(set, &tris, &photons, &tri, &MultiscaleParams::default(), &|_, _| false);
-        let tex = &g.textures[0][1];
+        let tex = &g.textures[0][INDIRECT];
         let total: f64 = tex.levels[0].texels.iter().map(|t| t.area as f64).sum();
         let full = tex.levels[0].texels.iter().filter(|t| t.area > 0.0).count();
         assert!(

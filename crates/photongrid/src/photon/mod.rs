@@ -1,8 +1,7 @@
-//! Photons: compact records, the tracer that shoots them from the lights, and the spatial
-//! index the render pass searches.
+//! Photons: compact records and the tracer that shoots them from the lights (the index the
+//! render pass searches them with is [`crate::spatial`]).
 
 pub mod caustic;
-pub mod neighbours;
 pub mod store;
 pub mod trace;
 

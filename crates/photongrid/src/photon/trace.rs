@@ -18,7 +18,8 @@ use rayon::prelude::*;
 pub struct TraceSettings {
     /// Photons emitted (paths started).
     pub photons: usize,
-    /// Bounces after which a path stops.
+    /// Surface interactions (diffuse, glass and mirror hits) after which a path stops; a photon
+    /// stored at the n-th records n ([`Photon::depth`]).
     pub max_depth: u32,
     /// Keep photons of direct light (the single-map method needs them; shadow rays do not).
     pub store_direct: bool,
@@ -231,7 +232,7 @@ fn trace_path(
     out: &mut Out,
 ) {
     let mut kind = PhotonKind::Direct;
-    for _depth in 0..settings.max_depth {
+    for depth in 1..=settings.max_depth {
         let Some(hit) = accel.intersect(origin, dir, f32::INFINITY) else {
             return;
         };
@@ -251,8 +252,12 @@ fn trace_path(
                     (PassKind::Global { .. }, PhotonKind::Indirect) => true,
                 };
                 if store {
+                    // Stochastic rounding of the power: the photons share a few exact powers,
+                    // which nearest rounding would bias all alike (see `rgbe_encode_dithered`).
+                    // One uniform for all channels: each is unbiased, and grey stays grey.
+                    let dither = Vec3::splat(rng.uniform());
                     out.push(
-                        Photon::new(sp.position, power, sp.facing_normal, -dir, kind),
+                        Photon::dithered(sp.position, power, sp.facing_normal, -dir, kind, dither).with_depth(depth),
                         hit.triangle,
                     );
                 }
@@ -276,15 +281,20 @@ fn trace_path(
                 let Some(s) = bsdf::sample_specular(surface, dir, &sp, hit.t, rng) else {
                     return;
                 };
+                // Interpolated normals: Veach's adjoint weight (photons travel against the
+                // direction the camera pass traces), and no path through the surface.
+                let Some(c) = bsdf::adjoint_shading_correction(-dir, s.direction, sp.facing_normal, s.normal) else {
+                    return;
+                };
                 // Russian roulette where the weight is below one keeps the power nearly constant.
                 let q = s.weight.max_element().min(1.0);
                 if q < 1.0 {
                     if rng.uniform() >= q {
                         return;
                     }
-                    power *= s.weight / q;
+                    power *= s.weight / q * c;
                 } else {
-                    power *= s.weight;
+                    power *= s.weight * c;
                 }
                 dir = s.direction;
                 origin = sp.offset(dir);

@@ -6,10 +6,10 @@ use crate::bsdf;
 use crate::estimate::density::{density_radiance, photon_density};
 use crate::estimate::{Estimator, IrradianceCache, Query};
 use crate::film::{Aov, Film};
-use crate::photon::neighbours::KnnBuffer;
 use crate::sampling::{self, stream, Rng};
 use crate::scene::{Camera, Scene, Surface};
 use crate::settings::DirectLighting;
+use crate::spatial::KnnBuffer;
 use crate::surface::SurfacePoint;
 use crate::Rgb;
 use glam::{Vec2, Vec3};
@@ -196,8 +196,8 @@ impl Tracer<'_> {
         };
         let g = self.photons.estimator.gather(&query, &mut self.knn);
         l += density_radiance(albedo, g.flux, g.r2);
-        if let (Some(cache), true) = (self.photons.irradiance, self.settings.gather > 0) {
-            l += albedo * self.final_gather(sp, cache, rng);
+        if g.needs_gathering && self.settings.gather > 0 {
+            l += albedo * self.final_gather(sp, rng);
         }
         if let Some(a) = aov.take() {
             a.albedo = albedo;
@@ -210,7 +210,7 @@ impl Tracer<'_> {
     /// Mean radiance arriving over the hemisphere from other surfaces (cosine-weighted
     /// directions, so indirect radiance = albedo × this mean), read from precomputed irradiance
     /// at the first diffuse surface each gather ray reaches through mirrors and glass.
-    fn final_gather(&mut self, sp: &SurfacePoint, cache: &IrradianceCache, rng: &mut Rng) -> Rgb {
+    fn final_gather(&mut self, sp: &SurfacePoint, rng: &mut Rng) -> Rgb {
         let n = self.settings.gather;
         let mut sum = Rgb::ZERO;
         for _ in 0..n {
@@ -218,28 +218,34 @@ impl Tracer<'_> {
             if d.dot(sp.facing_normal) <= 0.0 {
                 continue;
             }
-            sum += self.gather_ray(sp.offset(d), d, 0, cache, rng);
+            sum += self.gather_ray(sp.offset(d), d, 0, rng);
         }
         sum / n as f32
     }
 
     /// Radiance leaving the first diffuse surface along a gather ray, emission excluded (direct
     /// light is counted by shadow rays, light through glass by caustic photons).
-    fn gather_ray(&mut self, o: Vec3, d: Vec3, depth: u32, cache: &IrradianceCache, rng: &mut Rng) -> Rgb {
+    fn gather_ray(&mut self, o: Vec3, d: Vec3, depth: u32, rng: &mut Rng) -> Rgb {
         let Some(hit) = self.accel.intersect(o, d, f32::INFINITY) else {
             return Rgb::ZERO;
         };
         let sp = SurfacePoint::new(self.scene, o, d, hit);
         let surface = &self.scene.materials[sp.material as usize].surface;
         if let Surface::Lambert { .. } = surface {
-            let e = cache.lookup(sp.position, sp.facing_normal, &mut self.knn);
+            let e = match self.photons.estimator.grid_irradiance(sp.triangle, sp.position) {
+                Some(e) => e,
+                None => match self.photons.irradiance {
+                    Some(cache) => cache.lookup(sp.position, sp.facing_normal, &mut self.knn),
+                    None => Rgb::ZERO,
+                },
+            };
             return bsdf::lambert(sp.albedo(self.scene)) * e;
         }
         if depth >= 4 {
             return Rgb::ZERO;
         }
         match bsdf::sample_specular(surface, d, &sp, hit.t, rng) {
-            Some(s) => s.weight * self.gather_ray(sp.offset(s.direction), s.direction, depth + 1, cache, rng),
+            Some(s) => s.weight * self.gather_ray(sp.offset(s.direction), s.direction, depth + 1, rng),
             None => Rgb::ZERO,
         }
     }
