@@ -4,7 +4,7 @@
 use crate::accel::Hit;
 use crate::scene::{Scene, Surface};
 use crate::Rgb;
-use glam::{Vec2, Vec3};
+use glam::{Vec2, Vec3, Vec4};
 
 /// Local geometry at a ray hit.
 #[derive(Clone, Copy, Debug)]
@@ -92,6 +92,22 @@ impl SurfacePoint {
         if ns == Vec3::ZERO {
             ns = ng;
         }
+        let uv = tri.lerp(tri.uv, b1, b2);
+        if let Some(map) = &scene.materials[tri.material as usize].normal_map {
+            if let Some(t) = scene.tangents.get(hit.triangle as usize) {
+                let mapped = normal_mapped(
+                    ns,
+                    tri.lerp(*t, b1, b2),
+                    map.texture.sample(&scene.textures, uv),
+                    map.scale,
+                );
+                // glTF: a back face's normal is the front's reversed.
+                ns = if backface { -mapped } else { mapped };
+                if ns.dot(facing) <= 0.0 {
+                    ns = facing; // bent below the surface: keep the geometry's normal
+                }
+            }
+        }
         if ns.dot(facing) < 0.0 {
             ns = -ns;
         }
@@ -101,7 +117,7 @@ impl SurfacePoint {
             facing_normal: facing,
             facing_shading_normal: ns,
             backface,
-            uv: tri.lerp(tri.uv, b1, b2),
+            uv,
             material: tri.material,
             triangle: hit.triangle,
             eps: offset_eps(magnitude, scene.bounds.diagonal()),
@@ -112,7 +128,7 @@ impl SurfacePoint {
     pub fn albedo(&self, scene: &Scene) -> Rgb {
         match &scene.materials[self.material as usize].surface {
             Surface::Lambert { albedo, texture } => match texture {
-                Some(t) => *albedo * scene.textures[*t as usize].sample(self.uv),
+                Some(t) => *albedo * t.sample(&scene.textures, self.uv).truncate(),
                 None => *albedo,
             },
             _ => Rgb::ZERO,
@@ -133,5 +149,56 @@ impl SurfacePoint {
     /// The largest coordinate of this point in absolute value (for [`shadow_tmax`]).
     pub fn magnitude(&self) -> f32 {
         self.position.abs().max_element()
+    }
+}
+
+/// The shading normal of a tangent-space normal map (glTF spec 3.9.3): the texel `c` read as
+/// `(2c − 1) · (scale, scale, 1)` in the frame (T, B = (N × T) · w, N) of the interpolated
+/// normal `n` and tangent `t` (Gram–Schmidt orthogonalised, as MikkTSpace expects). A zero
+/// tangent leaves `n`.
+pub fn normal_mapped(n: Vec3, t: Vec4, c: Vec4, scale: f32) -> Vec3 {
+    let tt = t.truncate();
+    let tt = (tt - n * n.dot(tt)).normalize_or_zero();
+    if tt == Vec3::ZERO {
+        return n;
+    }
+    let sign = if t.w < 0.0 { -1.0 } else { 1.0 };
+    let b = n.cross(tt) * sign;
+    let m = Vec3::new((2.0 * c.x - 1.0) * scale, (2.0 * c.y - 1.0) * scale, 2.0 * c.z - 1.0);
+    let r = (tt * m.x + b * m.y + n * m.z).normalize_or_zero();
+    if r == Vec3::ZERO {
+        n
+    } else {
+        r
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flat_normal_map_keeps_the_normal_and_a_tilt_follows_the_tangent() {
+        let n = Vec3::Z;
+        let t = Vec4::new(1.0, 0.0, 0.0, 1.0);
+        // The flat texel (0.5, 0.5, 1) (128/255 ≈ 0.502 in 8 bits).
+        let flat = normal_mapped(n, t, Vec4::new(0.5, 0.5, 1.0, 1.0), 1.0);
+        assert!((flat - n).length() < 1e-6);
+        // +X in the texel tilts towards the tangent, +Y towards the bitangent N × T = +Y.
+        let tilt = normal_mapped(
+            n,
+            t,
+            Vec4::new(1.0, 0.5, 0.5 + 0.5 * 0.5f32.sqrt() * 2.0 / 2.0, 1.0),
+            1.0,
+        );
+        assert!(tilt.x > 0.5 && tilt.y.abs() < 1e-6, "{tilt}");
+        let up = normal_mapped(n, t, Vec4::new(0.5, 1.0, 1.0, 1.0), 1.0);
+        assert!((up - Vec3::new(0.0, 1.0, 1.0).normalize()).length() < 1e-5, "{up}");
+        // Handedness −1 mirrors the bitangent.
+        let down = normal_mapped(n, Vec4::new(1.0, 0.0, 0.0, -1.0), Vec4::new(0.5, 1.0, 1.0, 1.0), 1.0);
+        assert!(down.y < -0.5, "{down}");
+        // Scale 0 flattens.
+        let s0 = normal_mapped(n, t, Vec4::new(1.0, 1.0, 1.0, 1.0), 0.0);
+        assert!((s0 - n).length() < 1e-6);
     }
 }

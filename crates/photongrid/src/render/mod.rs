@@ -153,7 +153,7 @@ impl Tracer<'_> {
         }
         let mut l = Rgb::ZERO;
         if material.is_emissive() && (material.double_sided || !sp.backface) {
-            l += material.emission;
+            l += material.emission_at(&self.scene.textures, sp.uv); // the emissive texture as the camera sees it
         }
         if let Surface::Lambert { .. } = material.surface {
             return l + self.diffuse(&sp, rng, aov);

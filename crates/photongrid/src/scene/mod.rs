@@ -12,7 +12,7 @@ pub use light::Light;
 pub use material::{Material, Surface, Texture};
 
 use crate::Rgb;
-use glam::{Vec2, Vec3};
+use glam::{Vec2, Vec3, Vec4};
 use serde::Serialize;
 use std::path::PathBuf;
 
@@ -107,8 +107,14 @@ pub struct Scene {
     pub triangles: Vec<Triangle>,
     /// Materials referenced by the triangles.
     pub materials: Vec<Material>,
-    /// Base-colour textures.
+    /// The textures materials read.
     pub textures: Vec<Texture>,
+    /// Per triangle, the tangents (xyz, handedness w) at its vertices, for normal maps
+    /// (MikkTSpace when the file has none); empty when no material has a normal map.
+    pub tangents: Vec<[Vec4; 3]>,
+    /// Roughness from which glTF reflection lobes are rendered from photons
+    /// ([`crate::bsdf::GLOSSY_ROUGHNESS`] unless changed).
+    pub glossy_roughness: f32,
     /// Lights (emissive triangles are gathered into one [`Light::Emissive`]).
     pub lights: Vec<Light>,
     /// Cameras.
@@ -128,6 +134,11 @@ impl Scene {
     /// True if any material is a mirror or glass (so caustics can exist).
     pub fn has_specular(&self) -> bool {
         self.materials.iter().any(|m| m.is_specular())
+    }
+
+    /// True if any material has alpha (cut-outs or blending): rays then test coverage.
+    pub fn has_alpha(&self) -> bool {
+        self.materials.iter().any(|m| m.has_alpha())
     }
 
     /// Total surface area of all triangles.

@@ -4,7 +4,7 @@
 use super::meshes::MAX_COORDINATE;
 use super::{LoadError, Loader};
 use crate::scene::light::EmitterTriangle;
-use crate::scene::{units, Bounds, Light, Material, Triangle};
+use crate::scene::{units, Bounds, Light, Material, Texture, Triangle};
 use crate::Rgb;
 use glam::{Mat4, Vec3};
 
@@ -55,6 +55,7 @@ impl Loader<'_> {
         punctual: Vec<(usize, Option<String>, PunctualKind, Mat4)>,
         triangles: &[Triangle],
         materials: &[Material],
+        textures: &[Texture],
         bounds: &Bounds,
     ) -> Result<Vec<Light>, LoadError> {
         let mut lights = Vec::new();
@@ -65,7 +66,7 @@ impl Loader<'_> {
             self.report.lights.push(l.describe());
             lights.push(l);
         }
-        if let Some(l) = Light::emissive(emitters(triangles, materials)) {
+        if let Some(l) = Light::emissive(emitters(triangles, materials, textures)) {
             self.check_power("emissive materials", &l)?;
             self.report.lights.push(l.describe());
             lights.push(l);
@@ -162,8 +163,27 @@ impl Loader<'_> {
     }
 }
 
-/// The triangles whose material emits, as area-light pieces.
-fn emitters(triangles: &[Triangle], materials: &[Material]) -> Vec<EmitterTriangle> {
+/// Mean emitted radiance of a triangle with an emissive texture: the texture averaged over
+/// the triangle's texture coordinates (16 × 16 stratified barycentric samples).
+fn mean_emission(t: &Triangle, m: &Material, textures: &[Texture]) -> Rgb {
+    if m.emission_texture.is_none() {
+        return m.emission;
+    }
+    let n = 16;
+    let mut sum = Rgb::ZERO;
+    for i in 0..n {
+        for j in 0..n {
+            let u = glam::Vec2::new((i as f32 + 0.5) / n as f32, (j as f32 + 0.5) / n as f32);
+            let (b1, b2) = crate::sampling::uniform_triangle(u);
+            sum += m.emission_at(textures, t.lerp(t.uv, b1, b2));
+        }
+    }
+    sum / (n * n) as f32
+}
+
+/// The triangles whose material emits, as area-light pieces (an emissive texture by its
+/// mean over each triangle).
+fn emitters(triangles: &[Triangle], materials: &[Material], textures: &[Texture]) -> Vec<EmitterTriangle> {
     triangles
         .iter()
         .enumerate()
@@ -177,7 +197,7 @@ fn emitters(triangles: &[Triangle], materials: &[Material]) -> Vec<EmitterTriang
                 e2: t.p[2] - t.p[0],
                 normal: c.normalize(),
                 area: 0.5 * c.length(),
-                radiance: m.emission,
+                radiance: mean_emission(t, m, textures),
                 double_sided: m.double_sided,
                 triangle: i as u32,
             }

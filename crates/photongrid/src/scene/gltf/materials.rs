@@ -1,10 +1,12 @@
-//! glTF materials → [`Material`]: Lambert, mirror or glass, with emission and the base-colour
-//! texture; everything else is approximated or ignored, and said so in the report.
+//! glTF materials → [`Material`]: Lambert, mirror or smooth glass where the material is exactly
+//! that (specularFactor 0 and no metal; metallic 1 and roughness 0; transmission 1 and
+//! roughness 0), the glTF metallic-roughness BSDF with its textures otherwise; plus emission,
+//! normal map and alpha. What is still approximated or ignored is said in the report.
 
 use super::budget::{human, Budget, BYTES_PER_TEXEL};
 use super::uris::Source;
 use super::{Inputs, LoadError, Loader};
-use crate::scene::material::srgb_to_linear;
+use crate::scene::material::{AlphaMode, MetallicRoughness, NormalMap, TextureRef, Wrap};
 use crate::scene::{units, Material, Surface, Texture};
 use crate::Rgb;
 use image::{DynamicImage, ImageDecoder, ImageFormat};
@@ -22,12 +24,12 @@ enum ImageKey {
     Image(usize),
 }
 
-/// Textures decoded so far: one per distinct image source, so an image used by several
-/// materials (or several images naming one file) is decoded once.
+/// Textures decoded so far: one per distinct image source and colour space, so an image used
+/// by several materials (or several images naming one file) is decoded once.
 #[derive(Default)]
 pub(super) struct Textures {
     pub(super) list: Vec<Texture>,
-    by_key: HashMap<ImageKey, u32>,
+    by_key: HashMap<(ImageKey, bool), u32>,
 }
 
 fn image_key(sources: &super::uris::Sources, i: usize) -> ImageKey {
@@ -37,12 +39,39 @@ fn image_key(sources: &super::uris::Sources, i: usize) -> ImageKey {
     }
 }
 
-/// True if the material becomes a Lambert surface with a base-colour texture (the only
-/// texture that is decoded).
-fn decodes_base_texture(m: &gltf::Material) -> bool {
-    let transmission = m.transmission().map(|t| t.transmission_factor()).unwrap_or(0.0);
-    let metallic = m.pbr_metallic_roughness().metallic_factor();
-    !(transmission > 0.0) && !(metallic >= 0.5) && m.pbr_metallic_roughness().base_color_texture().is_some()
+/// The textures a material reads, with whether each is sRGB-encoded colour.
+fn texture_infos<'a>(m: &gltf::Material<'a>) -> Vec<(gltf::Texture<'a>, bool)> {
+    let pbr = m.pbr_metallic_roughness();
+    let mut out = Vec::new();
+    out.extend(pbr.base_color_texture().map(|i| (i.texture(), true)));
+    out.extend(pbr.metallic_roughness_texture().map(|i| (i.texture(), false)));
+    out.extend(m.normal_texture().map(|i| (i.texture(), false)));
+    out.extend(m.emissive_texture().map(|i| (i.texture(), true)));
+    if let Some(t) = m.transmission() {
+        out.extend(t.transmission_texture().map(|i| (i.texture(), false)));
+    }
+    if let Some(s) = m.specular() {
+        out.extend(s.specular_texture().map(|i| (i.texture(), false)));
+        out.extend(s.specular_color_texture().map(|i| (i.texture(), true)));
+    }
+    out
+}
+
+fn wrap(mode: gltf::texture::WrappingMode) -> Wrap {
+    match mode {
+        gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
+        gltf::texture::WrappingMode::ClampToEdge => Wrap::Clamp,
+        gltf::texture::WrappingMode::MirroredRepeat => Wrap::Mirror,
+    }
+}
+
+/// The 2×3 matrix of KHR_texture_transform: `T · R · S` as the extension's GLSL writes it.
+fn transform_matrix(offset: [f32; 2], rotation: f32, scale: [f32; 2]) -> [[f32; 3]; 2] {
+    let (s, c) = rotation.sin_cos();
+    [
+        [c * scale[0], -s * scale[1], offset[0]],
+        [s * scale[0], c * scale[1], offset[1]],
+    ]
 }
 
 impl Loader<'_> {
@@ -95,15 +124,65 @@ impl Loader<'_> {
                 ),
             ));
         }
-        self.report_unused_textures(m, &element, &name);
-        if m.emissive_texture().is_some() {
-            self.approximated(&element, &name, "emissive texture ignored (emissiveFactor used)");
+        if m.occlusion_texture().is_some() {
+            let what = format!("{element} '{name}': occlusion texture ignored (light transport gives occlusion)");
+            self.report.ignored.push(what);
         }
-        if pbr.metallic_roughness_texture().is_some() {
-            self.approximated(&element, &name, "metallic-roughness texture ignored (factors used)");
-        }
-        if m.alpha_mode() != gltf::material::AlphaMode::Opaque {
-            self.approximated(&element, &name, "alpha mode ignored: rendered opaque");
+        let emission_texture = match m.emissive_texture() {
+            Some(info) if emission.max_element() > 0.0 => {
+                self.approximated(
+                    &element,
+                    &name,
+                    "emissive texture: seen by the camera as is; lights the scene with its mean over each triangle",
+                );
+                Some(self.texture_ref(&info, true, &element, &name, inputs, textures)?)
+            }
+            _ => None,
+        };
+        let normal_map = match m.normal_texture() {
+            Some(n) => {
+                if n.tex_coord() != 0 {
+                    self.approximated(&element, &name, "normal texture uses TEXCOORD_1+: read with TEXCOORD_0");
+                }
+                let texture = n.texture();
+                let scale = n.scale();
+                if !scale.is_finite() {
+                    return Err(self.invalid(&element, "normalTexture.scale must be finite"));
+                }
+                Some(NormalMap {
+                    texture: self.texture_of(&texture, None, false, inputs, textures)?,
+                    scale,
+                })
+            }
+            None => None,
+        };
+        let (alpha_mode, alpha_texture) = match m.alpha_mode() {
+            gltf::material::AlphaMode::Opaque => (AlphaMode::Opaque, None),
+            mode => {
+                let cutoff = m.alpha_cutoff().unwrap_or(0.5);
+                let mode = if mode == gltf::material::AlphaMode::Mask {
+                    AlphaMode::Mask { cutoff }
+                } else {
+                    self.approximated(
+                        &element,
+                        &name,
+                        "alpha BLEND rendered as stochastic coverage (shadows attenuated by 1 − alpha)",
+                    );
+                    AlphaMode::Blend
+                };
+                let texture = match pbr.base_color_texture() {
+                    Some(info) => Some(self.texture_ref(&info, true, &element, &name, inputs, textures)?),
+                    None => None,
+                };
+                (mode, texture)
+            }
+        };
+        if !m.double_sided() {
+            self.approximated(
+                &element,
+                &name,
+                "single-sided: back faces scatter light as the front faces (only emission is one-sided)",
+            );
         }
         let surface = self.surface(m, base_rgb, &element, &name, inputs, textures)?;
         if let Surface::Lambert { albedo, .. } = &surface {
@@ -115,11 +194,17 @@ impl Loader<'_> {
             name,
             surface,
             emission,
+            emission_texture,
             double_sided: m.double_sided(),
+            normal_map,
+            alpha_mode,
+            alpha: base[3].clamp(0.0, 1.0),
+            alpha_texture,
         })
     }
 
-    /// Glass if transmissive, a mirror if metallic, Lambert otherwise.
+    /// Lambert, mirror or smooth glass where the material is exactly that, else the glTF
+    /// metallic-roughness BSDF.
     fn surface(
         &mut self,
         m: &gltf::Material,
@@ -129,20 +214,71 @@ impl Loader<'_> {
         inputs: &Inputs,
         textures: &mut Textures,
     ) -> Result<Surface, LoadError> {
-        let pbr = m.pbr_metallic_roughness();
-        let metallic = pbr.metallic_factor();
-        let roughness = pbr.roughness_factor();
-        let transmission = m.transmission().map(|t| t.transmission_factor()).unwrap_or(0.0);
+        let mr = self.metallic_roughness(m, base_rgb, element, name, inputs, textures)?;
+        let plain = mr.base_color_texture.is_none() && mr.metallic_roughness_texture.is_none();
+        let opaque = mr.transmission <= 0.0 && mr.transmission_texture.is_none();
+        if !opaque {
+            if mr.transmission >= 1.0
+                && mr.transmission_texture.is_none()
+                && mr.roughness <= 0.0
+                && mr.metallic <= 0.0
+                && plain
+            {
+                return Ok(Surface::Dielectric {
+                    ior: mr.ior,
+                    tint: base_rgb,
+                    absorption: mr.absorption,
+                });
+            }
+            if m.volume().is_none() {
+                self.approximated(
+                    element,
+                    name,
+                    "transmission without KHR_materials_volume rendered as a solid (as Blender does), not thin-walled",
+                );
+            }
+            return Ok(self.until_transport(mr, element, name));
+        }
+        if mr.metallic >= 1.0 && mr.roughness <= 0.0 && plain {
+            return Ok(Surface::Mirror { f0: base_rgb });
+        }
+        let specular_zero = mr.specular <= 0.0;
+        if mr.metallic <= 0.0 && specular_zero {
+            return Ok(Surface::Lambert {
+                albedo: base_rgb,
+                texture: mr.base_color_texture,
+            });
+        }
+        Ok(self.until_transport(mr, element, name))
+    }
+
+    /// The surface a material that needs the glTF BSDF renders as while the photon and camera
+    /// passes do not trace [`Surface::Gltf`] yet (issue 10, step b): the earlier approximations
+    /// (glass, mirror or Lambert), each reported.
+    fn until_transport(&mut self, mr: MetallicRoughness, element: &str, name: &str) -> Surface {
+        let (metallic, roughness, transmission) = (mr.metallic, mr.roughness, mr.transmission);
         if transmission > 0.0 {
             if transmission < 0.5 {
                 let what = format!("transmission {transmission} < 0.5 rendered as Lambert");
                 self.approximated(element, name, what);
-                return Ok(Surface::Lambert {
-                    albedo: base_rgb,
+                return Surface::Lambert {
+                    albedo: mr.base_color,
                     texture: None,
-                });
+                };
             }
-            return self.glass(m, base_rgb, transmission, roughness, element, name);
+            if transmission < 1.0 {
+                let what = format!("transmission {transmission} rendered as fully transmissive");
+                self.approximated(element, name, what);
+            }
+            if roughness > 0.0 {
+                let what = format!("roughness {roughness} on glass rendered as smooth glass");
+                self.approximated(element, name, what);
+            }
+            return Surface::Dielectric {
+                ior: mr.ior,
+                tint: mr.base_color,
+                absorption: mr.absorption,
+            };
         }
         if metallic >= 0.5 {
             if metallic < 1.0 {
@@ -152,48 +288,63 @@ impl Loader<'_> {
                 let what = format!("roughness {roughness} on metal rendered as a perfect mirror");
                 self.approximated(element, name, what);
             }
-            return Ok(Surface::Mirror { f0: base_rgb });
+            return Surface::Mirror { f0: mr.base_color };
         }
         if metallic > 0.0 {
             self.approximated(element, name, format!("metallic {metallic} < 0.5 rendered as Lambert"));
         }
-        if let Some(s) = m.specular() {
-            if s.specular_factor() > 0.0 && roughness < 1.0 {
-                self.approximated(element, name, "specular layer ignored (pure Lambert)");
-            }
-        } else if roughness < 1.0 {
-            self.approximated(element, name, "default specular layer ignored (pure Lambert)");
+        if mr.specular > 0.0 && roughness < 1.0 {
+            self.approximated(element, name, "specular layer ignored (pure Lambert)");
         }
-        let texture = match pbr.base_color_texture() {
-            Some(info) => Some(self.base_color_texture(&info, element, name, inputs, textures)?),
-            None => None,
-        };
-        Ok(Surface::Lambert {
-            albedo: base_rgb,
-            texture,
-        })
+        Surface::Lambert {
+            albedo: mr.base_color,
+            texture: mr.base_color_texture,
+        }
     }
 
-    fn glass(
+    /// The factors and textures of the material's metallic-roughness model.
+    fn metallic_roughness(
         &mut self,
         m: &gltf::Material,
         base_rgb: Rgb,
-        transmission: f32,
-        roughness: f32,
         element: &str,
         name: &str,
-    ) -> Result<Surface, LoadError> {
-        if transmission < 1.0 {
-            let what = format!("transmission {transmission} rendered as fully transmissive");
-            self.approximated(element, name, what);
-        }
-        if roughness > 0.0 {
-            self.approximated(
-                element,
-                name,
-                format!("roughness {roughness} on glass rendered as smooth glass"),
-            );
-        }
+        inputs: &Inputs,
+        textures: &mut Textures,
+    ) -> Result<MetallicRoughness, LoadError> {
+        let pbr = m.pbr_metallic_roughness();
+        let unit = |v: f32| if v.is_finite() { v.clamp(0.0, 1.0) } else { 0.0 };
+        let mut tex = |this: &mut Self, info: Option<gltf::texture::Info>, srgb: bool| match info {
+            Some(i) => this.texture_ref(&i, srgb, element, name, inputs, textures).map(Some),
+            None => Ok(None),
+        };
+        let base_color_texture = tex(self, pbr.base_color_texture(), true)?;
+        let metallic_roughness_texture = tex(self, pbr.metallic_roughness_texture(), false)?;
+        let (specular, specular_texture, specular_color, specular_color_texture) = match m.specular() {
+            Some(s) => {
+                let color = Rgb::from(s.specular_color_factor());
+                if !color.is_finite() || color.min_element() < 0.0 {
+                    return Err(self.invalid(
+                        element,
+                        "KHR_materials_specular: specularColorFactor must be finite and non-negative",
+                    ));
+                }
+                (
+                    unit(s.specular_factor()),
+                    tex(self, s.specular_texture(), false)?,
+                    color,
+                    tex(self, s.specular_color_texture(), true)?,
+                )
+            }
+            None => (1.0, None, Rgb::ONE, None),
+        };
+        let (transmission, transmission_texture) = match m.transmission() {
+            Some(t) => (
+                unit(t.transmission_factor()),
+                tex(self, t.transmission_texture(), false)?,
+            ),
+            None => (0.0, None),
+        };
         let ior = m.ior().unwrap_or(1.5);
         if !(ior.is_finite() && ior >= 1.0) {
             return Err(self.invalid(element, format!("KHR_materials_ior: ior {ior} must be ≥ 1")));
@@ -203,60 +354,74 @@ impl Loader<'_> {
             let c = Rgb::from(v.attenuation_color());
             (d.is_finite() && d > 0.0).then(|| -c.max(Rgb::splat(1e-6)).min(Rgb::ONE).map(f32::ln) / d)
         });
-        Ok(Surface::Dielectric {
+        Ok(MetallicRoughness {
+            base_color: base_rgb,
+            base_color_texture,
+            metallic: unit(pbr.metallic_factor()),
+            roughness: unit(pbr.roughness_factor()),
+            metallic_roughness_texture,
+            specular,
+            specular_texture,
+            specular_color,
+            specular_color_texture,
             ior,
-            tint: base_rgb,
+            transmission,
+            transmission_texture,
             absorption,
         })
     }
 
-    /// The texture of a base-colour texture reference, decoded on first use.
-    fn base_color_texture(
+    /// A texture reference: the image decoded on first use, its sampler and transform.
+    fn texture_ref(
         &mut self,
         info: &gltf::texture::Info,
+        srgb: bool,
         element: &str,
         name: &str,
         inputs: &Inputs,
         textures: &mut Textures,
-    ) -> Result<u32, LoadError> {
+    ) -> Result<TextureRef, LoadError> {
         if info.tex_coord() != 0 {
-            self.approximated(
-                element,
-                name,
-                "base colour texture uses TEXCOORD_1+: read with TEXCOORD_0",
-            );
+            self.approximated(element, name, "a texture uses TEXCOORD_1+: read with TEXCOORD_0");
         }
-        if info.texture_transform().is_some() {
-            self.approximated(element, name, "KHR_texture_transform ignored");
-        }
-        let texture = info.texture();
-        let wrap = (texture.sampler().wrap_s(), texture.sampler().wrap_t());
-        if wrap != (gltf::texture::WrappingMode::Repeat, gltf::texture::WrappingMode::Repeat) {
-            let what = format!("texture wrap mode {wrap:?} rendered as Repeat");
-            self.approximated(element, name, what);
-        }
-        let i = texture.source().index();
-        let key = image_key(inputs.sources, i);
-        if let Some(&t) = textures.by_key.get(&key) {
-            return Ok(t);
-        }
-        let tex = self.decode_image(inputs, i)?;
-        textures.list.push(tex);
-        let t = (textures.list.len() - 1) as u32;
-        textures.by_key.insert(key, t);
-        Ok(t)
+        let transform = info.texture_transform().map(|t| {
+            if t.tex_coord().is_some_and(|c| c != 0) {
+                self.approximated(element, name, "KHR_texture_transform texCoord override ignored");
+            }
+            transform_matrix(t.offset(), t.rotation(), t.scale())
+        });
+        let transform = transform.filter(|m| m.iter().flatten().all(|v| v.is_finite()));
+        self.texture_of(&info.texture(), transform, srgb, inputs, textures)
     }
 
-    /// Materials' textures that are not rendered, for the report.
-    fn report_unused_textures(&mut self, m: &gltf::Material, element: &str, name: &str) {
-        if m.normal_texture().is_some() {
-            let what = format!("{element} '{name}': normal texture ignored (the mesh's normals are used)");
-            self.report.ignored.push(what);
-        }
-        if m.occlusion_texture().is_some() {
-            let what = format!("{element} '{name}': occlusion texture ignored (light transport gives occlusion)");
-            self.report.ignored.push(what);
-        }
+    fn texture_of(
+        &mut self,
+        texture: &gltf::Texture,
+        transform: Option<[[f32; 3]; 2]>,
+        srgb: bool,
+        inputs: &Inputs,
+        textures: &mut Textures,
+    ) -> Result<TextureRef, LoadError> {
+        let sampler = texture.sampler();
+        let wrap = [wrap(sampler.wrap_s()), wrap(sampler.wrap_t())];
+        let i = texture.source().index();
+        let key = (image_key(inputs.sources, i), srgb);
+        let t = match textures.by_key.get(&key) {
+            Some(&t) => t,
+            None => {
+                let mut tex = self.decode_image(inputs, i)?;
+                tex.srgb = srgb;
+                textures.list.push(tex);
+                let t = (textures.list.len() - 1) as u32;
+                textures.by_key.insert(key, t);
+                t
+            }
+        };
+        Ok(TextureRef {
+            texture: t,
+            wrap,
+            transform,
+        })
     }
 
     /// Read the header of every image a material will decode and add the decoded textures to
@@ -264,16 +429,15 @@ impl Loader<'_> {
     pub(super) fn estimate_textures(&self, inputs: &Inputs, budget: &mut Budget) -> Result<(), LoadError> {
         let mut keys = std::collections::HashSet::new();
         let mut seen = Vec::new();
-        for m in inputs.doc.materials().filter(decodes_base_texture) {
-            let Some(info) = m.pbr_metallic_roughness().base_color_texture() else {
-                continue;
-            };
-            let i = info.texture().source().index();
-            if keys.insert(image_key(inputs.sources, i)) {
-                let bytes = self.image_bytes(inputs.root(), inputs.sources, inputs.buffers, i, budget.left())?;
-                let format = self.image_format(inputs, i, &bytes)?;
-                let (w, h, pixel) = probe(&bytes, format).map_err(|e| self.cannot_decode(i, e))?;
-                seen.push((i, w, h, pixel, bytes.len() as u64));
+        for m in inputs.doc.materials() {
+            for (texture, srgb) in texture_infos(&m) {
+                let i = texture.source().index();
+                if keys.insert((image_key(inputs.sources, i), srgb)) {
+                    let bytes = self.image_bytes(inputs.root(), inputs.sources, inputs.buffers, i, budget.left())?;
+                    let format = self.image_format(inputs, i, &bytes)?;
+                    let (w, h, pixel) = probe(&bytes, format).map_err(|e| self.cannot_decode(i, e))?;
+                    seen.push((i, w, h, pixel, bytes.len() as u64));
+                }
             }
         }
         let mut texels = 0u64;
@@ -378,11 +542,31 @@ fn describe_material(m: &Material) -> String {
                 .map(|a| format!(", absorption {:.3?}/m", a.to_array()))
                 .unwrap_or_default()
         ),
+        Surface::Gltf(g) => describe_gltf(g),
+    };
+    let mut extra = Vec::new();
+    if m.normal_map.is_some() {
+        extra.push("normal map (MikkTSpace tangents)".to_string());
+    }
+    match m.alpha_mode {
+        AlphaMode::Opaque => {}
+        AlphaMode::Mask { cutoff } => extra.push(format!("alpha cut-out at {cutoff}")),
+        AlphaMode::Blend => extra.push(format!("alpha blend ({:.3} × texture)", m.alpha)),
+    }
+    let s = if extra.is_empty() {
+        s
+    } else {
+        format!("{s}; {}", extra.join(", "))
     };
     if m.is_emissive() {
         format!(
-            "{s}, emits {:.3?} W/(m²·sr){}",
+            "{s}, emits {:.3?} W/(m²·sr){}{}",
             m.emission.to_array(),
+            if m.emission_texture.is_some() {
+                " × texture"
+            } else {
+                ""
+            },
             if m.double_sided { " (both faces)" } else { "" }
         )
     } else {
@@ -390,30 +574,70 @@ fn describe_material(m: &Material) -> String {
     }
 }
 
-fn texture_from_image(image: &DynamicImage) -> Option<Texture> {
-    let channels = match image {
-        DynamicImage::ImageLuma8(_) => 1,
-        DynamicImage::ImageLumaA8(_) => 2,
-        DynamicImage::ImageRgb8(_) => 3,
-        DynamicImage::ImageRgba8(_) => 4,
-        _ => return None,
+/// What a glTF metallic-roughness material renders as, in words.
+fn describe_gltf(g: &MetallicRoughness) -> String {
+    let mut s = format!(
+        "glTF metallic-roughness (GGX, Smith, Schlick): base {:.3?}, metallic {}, roughness {} (α {:.3})",
+        g.base_color.to_array(),
+        g.metallic,
+        g.roughness,
+        g.roughness * g.roughness
+    );
+    if g.specular != 1.0 || g.specular_color != Rgb::ONE {
+        s += &format!(", specular {} colour {:.3?}", g.specular, g.specular_color.to_array());
+    }
+    if g.ior != 1.5 {
+        s += &format!(", IOR {}", g.ior);
+    }
+    if g.transmission > 0.0 || g.transmission_texture.is_some() {
+        s += &format!(
+            ", transmission {} (rough dielectric, Walter et al. 2007)",
+            g.transmission
+        );
+    }
+    let textures: Vec<&str> = [
+        (g.base_color_texture.is_some(), "base colour"),
+        (g.metallic_roughness_texture.is_some(), "metallic-roughness"),
+        (g.specular_texture.is_some(), "specular"),
+        (g.specular_color_texture.is_some(), "specular colour"),
+        (g.transmission_texture.is_some(), "transmission"),
+    ]
+    .into_iter()
+    .filter_map(|(on, n)| on.then_some(n))
+    .collect();
+    if !textures.is_empty() {
+        s += &format!("; textures: {}", textures.join(", "));
+    }
+    let r = crate::bsdf::GLOSSY_ROUGHNESS;
+    let (dielectric, metal) = (g.metallic < 1.0, g.metallic > 0.0 || g.specular > 0.0);
+    let lobes = match (g.metallic_roughness_texture.is_some(), g.roughness >= r) {
+        (true, _) => format!("photons stored where roughness ≥ {r}, reflections traced below"),
+        (false, true) => "photons stored, reflection estimated from them".to_string(),
+        (false, false) => format!("reflection traced (roughness < {r})"),
     };
+    s += &format!(
+        "; {}{}",
+        if metal || dielectric { lobes } else { String::new() },
+        if g.transmission > 0.0 {
+            ", transmission traced"
+        } else {
+            ""
+        }
+    );
+    s
+}
+
+fn texture_from_image(image: &DynamicImage) -> Option<Texture> {
     let (w, h) = (image.width() as usize, image.height() as usize);
-    let pixels = image.as_bytes();
-    if w == 0 || h == 0 || pixels.len() < w * h * channels {
+    if w == 0 || h == 0 {
         return None;
     }
-    let texels = pixels
-        .chunks_exact(channels)
-        .take(w * h)
-        .map(|c| match channels {
-            1 | 2 => Rgb::splat(srgb_to_linear(c[0])),
-            _ => Rgb::new(srgb_to_linear(c[0]), srgb_to_linear(c[1]), srgb_to_linear(c[2])),
-        })
-        .collect();
-    Some(Texture {
+    let rgba = image.to_rgba8();
+    let texels: Vec<[u8; 4]> = rgba.pixels().map(|p| p.0).collect();
+    (texels.len() == w * h).then_some(Texture {
         width: w,
         height: h,
         texels,
+        srgb: true,
     })
 }

@@ -3,8 +3,8 @@
 
 use super::lights::{light_of, PunctualKind};
 use super::{Inputs, LoadError, Loader};
-use crate::scene::{Camera, Triangle};
-use glam::{Mat3, Mat4, Vec2, Vec3};
+use crate::scene::{Camera, Material, Triangle};
+use glam::{Mat3, Mat4, Vec2, Vec3, Vec4};
 use gltf::mesh::Mode;
 
 /// Largest coordinate magnitude accepted after the node transforms, in metres: the BVH builder
@@ -15,6 +15,8 @@ pub(super) const MAX_COORDINATE: f32 = 1e18;
 pub(super) struct NodeContent {
     /// World-space triangles.
     pub(super) triangles: Vec<Triangle>,
+    /// Their tangents (see [`crate::scene::Scene::tangents`]).
+    pub(super) tangents: Vec<[Vec4; 3]>,
     /// Cameras, in the order their nodes were visited.
     pub(super) cameras: Vec<Camera>,
     /// Punctual lights: node index, node name, light, world transform.
@@ -26,6 +28,8 @@ struct Instance<'n, 'a> {
     node: &'n gltf::Node<'a>,
     world: Mat4,
     default_material: u32,
+    /// Materials with a normal map (their primitives need tangents); empty if none has one.
+    normal_mapped: &'n [bool],
 }
 
 impl Instance<'_, '_> {
@@ -43,6 +47,7 @@ struct Vertices {
     positions: Vec<Vec3>,
     normals: Option<Vec<Vec3>>,
     uvs: Option<Vec<Vec2>>,
+    tangents: Option<Vec<Vec4>>,
     indices: Vec<u32>,
 }
 
@@ -53,7 +58,13 @@ impl Loader<'_> {
         inputs: &Inputs,
         default_material: u32,
         triangles: usize,
+        materials: &[Material],
     ) -> Result<NodeContent, LoadError> {
+        let normal_mapped: Vec<bool> = if materials.iter().any(|m| m.normal_map.is_some()) {
+            materials.iter().map(|m| m.normal_map.is_some()).collect()
+        } else {
+            Vec::new()
+        };
         let doc = inputs.doc;
         let scene = doc
             .default_scene()
@@ -61,6 +72,7 @@ impl Loader<'_> {
             .ok_or_else(|| self.invalid("scenes", "the file has no scene"))?;
         let mut out = NodeContent {
             triangles: Vec::with_capacity(triangles),
+            tangents: Vec::new(),
             cameras: Vec::new(),
             punctual: Vec::new(),
         };
@@ -84,8 +96,9 @@ impl Loader<'_> {
                     node: &node,
                     world,
                     default_material,
+                    normal_mapped: &normal_mapped,
                 };
-                self.mesh(&mesh, &instance, inputs.buffers, &mut out.triangles)?;
+                self.mesh(&mesh, &instance, inputs.buffers, &mut out)?;
             }
             if let Some(cam) = node.camera() {
                 out.cameras.push(self.camera(&node, &cam, world)?);
@@ -106,7 +119,7 @@ impl Loader<'_> {
         mesh: &gltf::Mesh,
         instance: &Instance,
         buffers: &[Vec<u8>],
-        out: &mut Vec<Triangle>,
+        out: &mut NodeContent,
     ) -> Result<(), LoadError> {
         for prim in mesh.primitives() {
             let element = format!("meshes[{}].primitives[{}]", mesh.index(), prim.index());
@@ -121,7 +134,33 @@ impl Loader<'_> {
             let tris = self.triangulate(mode, &vertices.indices, &element);
             let material = prim.material().index().map(|i| i as u32);
             let material = material.unwrap_or(instance.default_material);
-            self.place(&vertices, &tris, instance, material, &element, out)?;
+            let tangents = match instance.normal_mapped.get(material as usize) {
+                Some(true) => Some(self.tangents(&vertices, &tris, &element)),
+                _ => None,
+            };
+            let first = out.triangles.len();
+            let placed = self.place(&vertices, &tris, instance, material, &element, &mut out.triangles)?;
+            if !instance.normal_mapped.is_empty() {
+                let world = Mat3::from_mat4(instance.world);
+                let sign = world.determinant().signum();
+                for (k, &t) in placed.iter().enumerate() {
+                    let tan = match &tangents {
+                        Some(ts) => {
+                            let mut v = ts[t].map(|c| {
+                                let xyz = (world * c.truncate()).normalize_or_zero();
+                                xyz.extend(c.w * sign)
+                            });
+                            if sign < 0.0 {
+                                v.swap(1, 2); // as the triangle's vertices
+                            }
+                            v
+                        }
+                        None => [Vec4::ZERO; 3],
+                    };
+                    debug_assert_eq!(out.tangents.len(), first + k);
+                    out.tangents.push(tan);
+                }
+            }
         }
         Ok(())
     }
@@ -159,6 +198,10 @@ impl Loader<'_> {
             let uv = uvs.as_ref().map(|u| u[i]).unwrap_or_default();
             return Err(self.invalid(element, format!("TEXCOORD_0[{i}] is not finite ({uv})")));
         }
+        let tangents: Option<Vec<Vec4>> = reader
+            .read_tangents()
+            .map(|it| it.map(Vec4::from).collect())
+            .filter(|t: &Vec<Vec4>| t.len() == n && t.iter().all(|v| v.is_finite()));
         let indices: Vec<u32> = match reader.read_indices() {
             Some(it) => it.into_u32().collect(),
             None => (0..n as u32).collect(),
@@ -170,8 +213,35 @@ impl Loader<'_> {
             positions,
             normals,
             uvs,
+            tangents,
             indices,
         })
+    }
+
+    /// Tangents at the corners of each triangle of `tris` (object space, handedness in w): the
+    /// file's TANGENT attribute if it has one, else MikkTSpace's (as the glTF spec and
+    /// Blender's Normal Map node use), from positions, normals and TEXCOORD_0.
+    fn tangents(&mut self, v: &Vertices, tris: &[[u32; 3]], element: &str) -> Vec<[Vec4; 3]> {
+        if let Some(ts) = &v.tangents {
+            return tris.iter().map(|t| t.map(|i| ts[i as usize])).collect();
+        }
+        if v.uvs.is_none() {
+            self.report.ignored.push(format!(
+                "{element}: normal map ignored: no TEXCOORD_0 to build tangents from"
+            ));
+            return vec![[Vec4::ZERO; 3]; tris.len()];
+        }
+        let mut g = MikkGeometry {
+            v,
+            tris,
+            out: vec![[Vec4::ZERO; 3]; tris.len()],
+        };
+        if !mikktspace::generate_tangents(&mut g) {
+            self.report
+                .ignored
+                .push(format!("{element}: MikkTSpace found no tangents: normal map ignored"));
+        }
+        g.out
     }
 
     /// Triangles of a list, strip or fan.
@@ -211,8 +281,9 @@ impl Loader<'_> {
         material: u32,
         element: &str,
         out: &mut Vec<Triangle>,
-    ) -> Result<(), LoadError> {
+    ) -> Result<Vec<usize>, LoadError> {
         let world = instance.world;
+        let mut placed = Vec::with_capacity(tris.len());
         let normal_matrix = Mat3::from_mat4(world).inverse().transpose();
         let flip = Mat3::from_mat4(world).determinant() < 0.0;
         let world_p: Vec<Vec3> = v.positions.iter().map(|p| world.transform_point3(*p)).collect();
@@ -230,7 +301,7 @@ impl Loader<'_> {
             .as_ref()
             .map(|ns| ns.iter().map(|n| (normal_matrix * *n).normalize_or_zero()).collect());
         let degenerate_before = self.report.degenerate_triangles;
-        for &t in tris {
+        for (k, &t) in tris.iter().enumerate() {
             let mut t = t;
             if flip {
                 t.swap(1, 2);
@@ -277,6 +348,7 @@ impl Loader<'_> {
                 uv,
                 material,
             });
+            placed.push(k);
         }
         let degenerate = self.report.degenerate_triangles - degenerate_before;
         if degenerate > 0 {
@@ -284,6 +356,53 @@ impl Loader<'_> {
                 "{element}: {degenerate} degenerate (zero-area) triangles skipped"
             ));
         }
-        Ok(())
+        Ok(placed)
+    }
+}
+
+/// A primitive's triangles as MikkTSpace reads them (face = triangle; flat normals where the
+/// file has none).
+struct MikkGeometry<'a> {
+    v: &'a Vertices,
+    tris: &'a [[u32; 3]],
+    out: Vec<[Vec4; 3]>,
+}
+
+impl mikktspace::Geometry for MikkGeometry<'_> {
+    fn num_faces(&self) -> usize {
+        self.tris.len()
+    }
+
+    fn num_vertices_of_face(&self, _face: usize) -> usize {
+        3
+    }
+
+    fn position(&self, face: usize, vert: usize) -> [f32; 3] {
+        self.v.positions[self.tris[face][vert] as usize].to_array()
+    }
+
+    fn normal(&self, face: usize, vert: usize) -> [f32; 3] {
+        match &self.v.normals {
+            Some(n) => n[self.tris[face][vert] as usize].to_array(),
+            None => {
+                let p = self.tris[face].map(|i| self.v.positions[i as usize]);
+                (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero().to_array()
+            }
+        }
+    }
+
+    fn tex_coord(&self, face: usize, vert: usize) -> [f32; 2] {
+        match &self.v.uvs {
+            Some(uv) => uv
+                .get(self.tris[face][vert] as usize)
+                .copied()
+                .unwrap_or(Vec2::ZERO)
+                .to_array(),
+            None => [0.0; 2],
+        }
+    }
+
+    fn set_tangent_encoded(&mut self, tangent: [f32; 4], face: usize, vert: usize) {
+        self.out[face][vert] = Vec4::from(tangent);
     }
 }

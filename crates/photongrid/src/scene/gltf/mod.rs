@@ -282,7 +282,7 @@ impl<'a> Loader<'a> {
         let (mut materials, textures) = self.materials(inputs)?;
         let default_material = materials.len() as u32;
         materials.push(super::Material::default_gltf());
-        let nodes = self.nodes(inputs, default_material, triangles as usize)?;
+        let nodes = self.nodes(inputs, default_material, triangles as usize, &materials)?;
         if nodes.triangles.is_empty() {
             return Err(LoadError::NoGeometry {
                 path: self.path.to_path_buf(),
@@ -295,13 +295,15 @@ impl<'a> Loader<'a> {
                 bounds.grow(p);
             }
         }
-        let lights = self.lights(nodes.punctual, &nodes.triangles, &materials, &bounds)?;
+        let lights = self.lights(nodes.punctual, &nodes.triangles, &materials, &textures, &bounds)?;
         let cameras = self.sorted_cameras(nodes.cameras);
         let scene = Scene {
             source: self.path.to_path_buf(),
             triangles: nodes.triangles,
             materials,
             textures,
+            tangents: nodes.tangents,
+            glossy_roughness: crate::bsdf::GLOSSY_ROUGHNESS,
             lights,
             cameras,
             bounds,

@@ -1,13 +1,27 @@
-//! Scattering at surfaces: Lambert, Schlick mirror, smooth dielectric. Used by the photon
-//! tracer and the camera pass alike, so each formula lives here once; [`specular_branches`]
-//! and [`sample_specular`] are the one specular step (Fresnel branch choice and Beer
-//! absorption) every path uses.
+//! Scattering at surfaces: Lambert, Schlick mirror, smooth dielectric, and the glTF
+//! metallic-roughness BSDF ([`metallic_roughness`] on the GGX microfacet model of [`ggx`]).
+//! Used by the photon tracer and the camera pass alike, so each formula lives here once;
+//! [`sample`] is the one scattering step every path takes at a non-Lambert surface (Fresnel
+//! branch choice at mirrors and glass, lobe sampling of the glTF BSDF, Beer absorption), and
+//! [`GltfPoint::eval`] the one evaluation (light sampling, photon estimates).
 
-use crate::sampling::Rng;
-use crate::scene::Surface;
+pub mod ggx;
+pub mod metallic_roughness;
+
+use crate::sampling::{self, Rng};
+use crate::scene::material::MetallicRoughness;
+use crate::scene::{Scene, Surface};
 use crate::surface::SurfacePoint;
 use crate::Rgb;
-use glam::Vec3;
+use glam::{Vec2, Vec3};
+pub use metallic_roughness::{LobeMask, Lobes};
+
+/// Roughness from which a glTF reflection lobe is rendered from photons (photons are stored
+/// there and the estimate weights each by the BSDF); below it, the lobe is traced like a
+/// mirror: photons pass on (caustics) and camera rays follow it. Not measured yet: the glTF
+/// lobes are not wired into the photon and camera passes (issue 10), so this value only
+/// labels materials in `photongrid info`.
+pub const GLOSSY_ROUGHNESS: f32 = 0.4;
 
 /// Mirror reflection of `d` (pointing towards the surface) about `n`.
 pub fn reflect(d: Vec3, n: Vec3) -> Vec3 {
@@ -158,6 +172,10 @@ fn absorption(surface: &Surface, sp: &SurfacePoint, distance: f32) -> Rgb {
             absorption: Some(sigma),
             ..
         } if sp.backface => (-*sigma * distance).exp(),
+        Surface::Gltf(m) if sp.backface => match m.absorption {
+            Some(sigma) => (-sigma * distance).exp(),
+            None => Rgb::ONE,
+        },
         _ => Rgb::ONE,
     }
 }
@@ -171,7 +189,7 @@ fn fresnel_branches(surface: &Surface, d: Vec3, sp: &SurfacePoint) -> Option<(Sc
         normal: s.normal,
     };
     match surface {
-        Surface::Lambert { .. } => None,
+        Surface::Lambert { .. } | Surface::Gltf(_) => None,
         Surface::Mirror { f0 } => {
             let n = sp.facing_shading_normal;
             let r = Scatter {
@@ -230,6 +248,242 @@ pub fn sample_specular(surface: &Surface, d: Vec3, sp: &SurfacePoint, distance: 
         weight: absorption(surface, sp, distance) * chosen.weight,
         ..chosen
     })
+}
+
+/// Which lobes of a glTF BSDF a step samples or evaluates.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Part {
+    /// Every lobe (photon paths).
+    All,
+    /// The lobes rays are traced through (camera paths: narrow reflection, transmission).
+    Traced,
+    /// The lobes rendered from photons (diffuse base, wide reflection).
+    Stored,
+}
+
+/// A scattering step: direction, throughput weight, and the density it was sampled with.
+#[derive(Clone, Copy, Debug)]
+pub struct Sampled {
+    /// New unit direction.
+    pub direction: Vec3,
+    /// Throughput multiplier (`f |cosθ| / pdf`, or the Fresnel branch weight).
+    pub weight: Rgb,
+    /// Solid-angle density of the direction; 0 for a delta lobe (mirror, smooth glass).
+    pub pdf: f32,
+    /// True if it went through a lobe that is traced (see [`GLOSSY_ROUGHNESS`]) or a delta
+    /// lobe: light that follows it is a caustic for photons.
+    pub traced: bool,
+}
+
+/// The one scattering step of every path at a non-Lambert surface: a ray `d` met `sp` after
+/// travelling `distance`. Mirrors and glass take a Fresnel branch ([`sample_specular`]); glTF
+/// materials sample the lobes of `part`. None for Lambert (whose cosine step is the callers')
+/// or where nothing scatters.
+pub fn sample(scene: &Scene, d: Vec3, sp: &SurfacePoint, distance: f32, rng: &mut Rng, part: Part) -> Option<Sampled> {
+    let surface = &scene.materials[sp.material as usize].surface;
+    match surface {
+        Surface::Lambert { .. } => None,
+        Surface::Mirror { .. } | Surface::Dielectric { .. } => {
+            sample_specular(surface, d, sp, distance, rng).map(|s| Sampled {
+                direction: s.direction,
+                weight: s.weight,
+                pdf: 0.0,
+                traced: true,
+            })
+        }
+        Surface::Gltf(m) => {
+            let g = GltfPoint::at(scene, m, sp, d);
+            let s = match part {
+                Part::All => g.sample_split(rng)?,
+                Part::Traced | Part::Stored => {
+                    let s = g.sample(g.mask(part), rng.uniform(), rng.uniform2())?;
+                    Sampled {
+                        traced: part == Part::Traced,
+                        ..s
+                    }
+                }
+            };
+            Some(Sampled {
+                weight: s.weight * absorption(surface, sp, distance),
+                ..s
+            })
+        }
+    }
+}
+
+/// The glTF BSDF at a hit with its shading frame, ready to sample and evaluate in world space.
+#[derive(Clone, Copy, Debug)]
+pub struct GltfPoint {
+    /// The lobes with the textures read.
+    pub lobes: Lobes,
+    /// The lobes photons are stored for (estimated from photons).
+    pub stored: LobeMask,
+    /// The lobes rays are traced through.
+    pub traced: LobeMask,
+    /// Shading frame: tangent, bitangent, normal on the side of `wo`.
+    frame: [Vec3; 3],
+    /// Geometric normal on the side of `wo`.
+    ng: Vec3,
+    /// `wo` lies inside the material (a back face of a transmissive solid).
+    inside: bool,
+    /// Direction towards where the path came from, local.
+    wo: Vec3,
+}
+
+impl GltfPoint {
+    /// The BSDF of material `m` at `sp` for a ray travelling along `d`.
+    pub fn at(scene: &Scene, m: &MetallicRoughness, sp: &SurfacePoint, d: Vec3) -> Self {
+        let lobes = lobes_at(scene, m, sp.uv);
+        let n = sp.facing_shading_normal;
+        let (t, b) = sampling::basis(n);
+        let w = -d;
+        let wo = Vec3::new(w.dot(t), w.dot(b), w.dot(n).max(1e-4)).normalize();
+        let (stored, traced) = lobes.split(scene.glossy_roughness * scene.glossy_roughness);
+        GltfPoint {
+            lobes,
+            stored,
+            traced,
+            frame: [t, b, n],
+            ng: sp.facing_normal,
+            inside: sp.backface && lobes.transmission > 0.0,
+            wo,
+        }
+    }
+
+    /// The lobes of `part`.
+    pub fn mask(&self, part: Part) -> LobeMask {
+        match part {
+            Part::All => LobeMask::ALL,
+            Part::Traced => self.traced,
+            Part::Stored => self.stored,
+        }
+    }
+
+    fn local(&self, v: Vec3) -> Vec3 {
+        Vec3::new(v.dot(self.frame[0]), v.dot(self.frame[1]), v.dot(self.frame[2]))
+    }
+
+    fn world(&self, v: Vec3) -> Vec3 {
+        self.frame[0] * v.x + self.frame[1] * v.y + self.frame[2] * v.z
+    }
+
+    /// A direction is usable if it lies on the same side of the geometric surface as of the
+    /// shading surface (no light leaks through shading normals).
+    fn consistent(&self, wi_world: Vec3, wi_local: Vec3) -> bool {
+        (wi_world.dot(self.ng) > 0.0) == (wi_local.z > 0.0)
+    }
+
+    /// `f(wo, wi)` of the lobes in `mask` and the density with which [`GltfPoint::sample`]
+    /// returns `wi` (world direction away from the surface).
+    pub fn eval(&self, wi: Vec3, mask: LobeMask) -> (Rgb, f32) {
+        let l = self.local(wi);
+        if !self.consistent(wi, l) {
+            return (Rgb::ZERO, 0.0);
+        }
+        (
+            self.lobes.eval(self.wo, l, self.inside, mask),
+            self.lobes.pdf(self.wo, l, self.inside, mask),
+        )
+    }
+
+    /// Sample the lobes in `mask` with the random numbers `u_lobe`, `u`.
+    pub fn sample(&self, mask: LobeMask, u_lobe: f32, u: Vec2) -> Option<Sampled> {
+        if mask.is_empty() {
+            return None;
+        }
+        let s = self.lobes.sample(self.wo, self.inside, mask, u_lobe, u)?;
+        let direction = self.world(s.wi).normalize();
+        if !self.consistent(direction, s.wi) {
+            return None;
+        }
+        Some(Sampled {
+            direction,
+            weight: s.weight,
+            pdf: s.pdf,
+            traced: false,
+        })
+    }
+
+    /// Sample every lobe in two stages: the traced or the stored lobes, in proportion to their
+    /// approximate albedos, then a direction within them (the photon step: a photon that took a
+    /// traced lobe carries a caustic on).
+    pub fn sample_split(&self, rng: &mut Rng) -> Option<Sampled> {
+        let w = self.lobes.strategies(self.wo, self.inside, LobeMask::ALL);
+        let weight = |m: LobeMask| {
+            let mut x = 0.0;
+            if m.reflection {
+                x += w[0];
+            }
+            if m.diffuse {
+                x += w[1];
+            }
+            if m.transmission {
+                x += w[2];
+            }
+            x
+        };
+        let (pt, ps) = (weight(self.traced), weight(self.stored));
+        if !(pt + ps > 0.0) {
+            return None;
+        }
+        let pt = pt / (pt + ps);
+        let (mask, p, traced) = if rng.uniform() < pt {
+            (self.traced, pt, true)
+        } else {
+            (self.stored, 1.0 - pt, false)
+        };
+        let s = self.sample(mask, rng.uniform(), rng.uniform2())?;
+        Some(Sampled {
+            weight: s.weight / p,
+            pdf: s.pdf * p,
+            traced,
+            ..s
+        })
+    }
+
+    /// Directional albedo of the lobes in `mask` (∫ f |cosθ| dω), from `n` samples.
+    pub fn albedo(&self, mask: LobeMask, n: usize) -> Rgb {
+        self.lobes.albedo(self.wo, self.inside, mask, n)
+    }
+}
+
+/// The lobes of material `m` at texture coordinates `uv`: factors × textures (glTF spec:
+/// metalness in B and roughness in G of the metallic-roughness texture; specular in the
+/// specular texture's alpha).
+pub fn lobes_at(scene: &Scene, m: &MetallicRoughness, uv: Vec2) -> Lobes {
+    let tex = &scene.textures;
+    let mut base = m.base_color;
+    if let Some(t) = &m.base_color_texture {
+        base *= t.sample(tex, uv).truncate();
+    }
+    let (mut metallic, mut roughness) = (m.metallic, m.roughness);
+    if let Some(t) = &m.metallic_roughness_texture {
+        let c = t.sample(tex, uv);
+        metallic *= c.z;
+        roughness *= c.y;
+    }
+    let mut specular = m.specular;
+    if let Some(t) = &m.specular_texture {
+        specular *= t.sample(tex, uv).w;
+    }
+    let mut specular_color = m.specular_color;
+    if let Some(t) = &m.specular_color_texture {
+        specular_color *= t.sample(tex, uv).truncate();
+    }
+    let mut transmission = m.transmission;
+    if let Some(t) = &m.transmission_texture {
+        transmission *= t.sample(tex, uv).x;
+    }
+    let f0 = (Rgb::splat(metallic_roughness::f0_of_ior(m.ior)) * specular_color).min(Rgb::ONE);
+    Lobes {
+        base,
+        metallic: metallic.clamp(0.0, 1.0),
+        alpha: (roughness * roughness).max(ggx::MIN_ALPHA),
+        f0,
+        specular: specular.clamp(0.0, 1.0),
+        transmission: transmission.clamp(0.0, 1.0),
+        ior: m.ior,
+    }
 }
 
 #[cfg(test)]
