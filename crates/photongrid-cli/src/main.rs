@@ -476,7 +476,9 @@ fn render(a: RenderArgs) -> Result<()> {
     set_threads(a.threads)?;
     let settings = &a.settings;
     settings.validate().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
-    // The outputs first, before any work: the right extensions, folders created, writable.
+    // The outputs first, before any work: none replaces an input or another output, the right
+    // extensions, folders created, writable.
+    plan_outputs(&a, None)?;
     paths::check_extension(&a.output, Format::Exr, "--output").map_err(anyhow::Error::msg)?;
     if let Some(p) = &a.png {
         paths::check_extension(p, Format::Png, "--png").map_err(anyhow::Error::msg)?;
@@ -491,7 +493,6 @@ fn render(a: RenderArgs) -> Result<()> {
     if let Some(dir) = &a.dump_grids {
         paths::prepare(&dir.join("plane000_counts.exr")).map_err(anyhow::Error::msg)?;
     }
-    plan_outputs(&a, None)?;
     let stop = stop_on_signals();
     let display = Display::new(a.progress).with_stop(Arc::clone(&stop));
     announce_stop(Arc::clone(&stop), a.progress);

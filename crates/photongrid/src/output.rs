@@ -395,8 +395,8 @@ impl OutputPlan {
     }
 
     /// A file the run writes (`what`: "--output", "--png of camera 'Cam'"...). Refused when
-    /// it is not a regular file, its folder does not exist, or it names an input or an
-    /// earlier output.
+    /// it is not a regular file or it names an input or an earlier output. A missing folder
+    /// is not refused: the CLI creates output folders before any work.
     pub fn output(&mut self, what: impl Into<String>, path: &Path) -> Result<(), OutputError> {
         let what = what.into();
         let refuse = |message: String| OutputError::Refused {
@@ -411,13 +411,6 @@ impl OutputPlan {
             OutputError::Refused { message, .. } => refuse(format!("{what} {message}")),
             e => e,
         })?;
-        let dir = parent_dir(path);
-        if !dir.is_dir() {
-            return Err(refuse(format!(
-                "{what}: the folder {} does not exist; create it first",
-                dir.display()
-            )));
-        }
         let res = resolved(path, false);
         let id = file_id(path);
         for (input, given, entry, target, input_id) in &self.inputs {
@@ -700,7 +693,7 @@ mod tests {
         assert!(msg(plan.output("--output", &dir.join("sub/../s.glb"))).contains("is the scene"));
         plan.output("--output", &dir.join("a.exr")).unwrap();
         assert!(msg(plan.output("--png", &dir.join("sub/../a.exr"))).contains("same file as --output"));
-        assert!(msg(plan.output("--png", &dir.join("none/x.png"))).contains("does not exist"));
+        plan.output("--png", &dir.join("none/x.png")).unwrap();
         assert!(msg(plan.output("--png", &dir.join("sub"))).contains("a folder"));
         plan.output("--png", &dir.join("sub/a.exr")).unwrap();
         std::fs::remove_dir_all(&dir).unwrap();
