@@ -12,7 +12,7 @@
 //! - while one camera renders and is written: its pass film and the encoded image (72 bytes
 //!   a pixel), and each worker thread's sample strata (4 bytes × `spp`);
 //! - one pass's photons: stored photons per emitted path from the scene's mean albedo
-//!   (1 + ρ + ρ² + … up to `max_photon_depth` bounces), about 100 bytes each while traced and
+//!   (1 + ρ + ρ² + … up to `Settings::photon_hits()` bounces), about 100 bytes each while traced and
 //!   indexed, 72 more when final gathering indexes all of them again;
 //! - the grids the estimate needs: at least one plane of `grid_res²` cells (16 bytes each),
 //!   or the multiscale pyramids' `grid_cells` (72 bytes each with the coarser levels).
@@ -240,7 +240,7 @@ pub fn estimate_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) 
         0
     };
     let rho = mean_albedo(scene);
-    let depth = settings.max_photon_depth.max(1) as i32;
+    let depth = settings.photon_hits().max(1) as i32;
     let per_path = if rho < 1.0 {
         (1.0 - rho.powi(depth)) / (1.0 - rho)
     } else {

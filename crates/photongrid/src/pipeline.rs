@@ -135,6 +135,9 @@ pub struct MemoryReport {
     pub bvh_bytes: usize,
     /// The grids.
     pub grids_bytes: usize,
+    /// The estimate checked against the memory limit before any work ([`crate::memory`]).
+    #[serde(default)]
+    pub estimated_bytes: u64,
 }
 
 /// One camera's image.
@@ -355,7 +358,7 @@ pub fn render(
     } = *request;
     settings.validate()?;
     check_photon_memory(settings.photons, caustic_photons(scene, settings))?;
-    crate::memory::check_render(scene, cameras, settings)?;
+    let estimate = crate::memory::check_render(scene, cameras, settings)?;
     let mut report = RenderReport {
         scene: scene.source.clone(),
         version: env!("CARGO_PKG_VERSION").to_string(),
@@ -439,6 +442,7 @@ pub fn render(
     report.memory.bvh_bytes = accel.memory_bytes();
     report.memory.grids_bytes = grids.memory_bytes();
     report.memory.peak_bytes = peak_memory_bytes();
+    report.memory.estimated_bytes = estimate.total();
     report.grids = GridReport::of(&grids);
     report.cpu_seconds = cpu_seconds();
     Ok(Rendered { films, report, grids })
