@@ -110,7 +110,7 @@ pub struct Scene {
     /// The textures materials read.
     pub textures: Vec<Texture>,
     /// Per triangle, the tangents (xyz, handedness w) at its vertices, for normal maps
-    /// (MikkTSpace when the file has none); empty when no material has a normal map.
+    /// (from TEXCOORD_0 when the file has none); empty when no material has a normal map.
     pub tangents: Vec<[Vec4; 3]>,
     /// Roughness from which glTF reflection lobes are rendered from photons
     /// ([`crate::bsdf::GLOSSY_ROUGHNESS`] unless changed).

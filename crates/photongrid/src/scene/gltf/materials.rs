@@ -546,7 +546,7 @@ fn describe_material(m: &Material) -> String {
     };
     let mut extra = Vec::new();
     if m.normal_map.is_some() {
-        extra.push("normal map (MikkTSpace tangents)".to_string());
+        extra.push("normal map (tangents from TEXCOORD_0)".to_string());
     }
     match m.alpha_mode {
         AlphaMode::Opaque => {}

@@ -219,29 +219,40 @@ impl Loader<'_> {
     }
 
     /// Tangents at the corners of each triangle of `tris` (object space, handedness in w): the
-    /// file's TANGENT attribute if it has one, else MikkTSpace's (as the glTF spec and
-    /// Blender's Normal Map node use), from positions, normals and TEXCOORD_0.
+    /// file's TANGENT attribute if it has one, else each triangle's own from its positions and
+    /// TEXCOORD_0 (the direction of increasing u, as MikkTSpace, but not averaged over shared
+    /// vertices), orthogonalised against each corner's normal. The MikkTSpace crate was tried
+    /// and panics on degenerate meshes the fuzzer generates.
     fn tangents(&mut self, v: &Vertices, tris: &[[u32; 3]], element: &str) -> Vec<[Vec4; 3]> {
         if let Some(ts) = &v.tangents {
-            return tris.iter().map(|t| t.map(|i| ts[i as usize])).collect();
+            return tris
+                .iter()
+                .map(|t| t.map(|i| ts.get(i as usize).copied().unwrap_or(Vec4::ZERO)))
+                .collect();
         }
-        if v.uvs.is_none() {
+        let Some(uvs) = &v.uvs else {
             self.report.ignored.push(format!(
                 "{element}: normal map ignored: no TEXCOORD_0 to build tangents from"
             ));
             return vec![[Vec4::ZERO; 3]; tris.len()];
-        }
-        let mut g = MikkGeometry {
-            v,
-            tris,
-            out: vec![[Vec4::ZERO; 3]; tris.len()],
         };
-        if !mikktspace::generate_tangents(&mut g) {
-            self.report
-                .ignored
-                .push(format!("{element}: MikkTSpace found no tangents: normal map ignored"));
+        let mut degenerate = 0usize;
+        let out: Vec<[Vec4; 3]> = tris
+            .iter()
+            .map(|t| {
+                let frame = triangle_tangents(v, uvs, t);
+                if frame.is_none() {
+                    degenerate += 1;
+                }
+                frame.unwrap_or([Vec4::ZERO; 3])
+            })
+            .collect();
+        if degenerate > 0 {
+            self.report.ignored.push(format!(
+                "{element}: normal map ignored on {degenerate} triangles whose positions or TEXCOORD_0 are degenerate"
+            ));
         }
-        g.out
+        out
     }
 
     /// Triangles of a list, strip or fan.
@@ -360,49 +371,86 @@ impl Loader<'_> {
     }
 }
 
-/// A primitive's triangles as MikkTSpace reads them (face = triangle; flat normals where the
-/// file has none).
-struct MikkGeometry<'a> {
-    v: &'a Vertices,
-    tris: &'a [[u32; 3]],
-    out: Vec<[Vec4; 3]>,
+/// One triangle's tangent frame from its positions and texture coordinates: at each corner the
+/// direction of increasing u, orthogonal to the corner's normal (flat normal where the file has
+/// none), with the handedness of v in w. None when the triangle or its UVs are degenerate.
+fn triangle_tangents(v: &Vertices, uvs: &[Vec2], t: &[u32; 3]) -> Option<[Vec4; 3]> {
+    let p = [0, 1, 2].map(|k| v.positions.get(t[k] as usize).copied());
+    let uv = [0, 1, 2].map(|k| uvs.get(t[k] as usize).copied());
+    let (Some(p0), Some(p1), Some(p2), Some(t0), Some(t1), Some(t2)) = (p[0], p[1], p[2], uv[0], uv[1], uv[2]) else {
+        return None;
+    };
+    let (e1, e2) = (p1 - p0, p2 - p0);
+    let (d1, d2) = (t1 - t0, t2 - t0);
+    let det = d1.x * d2.y - d2.x * d1.y;
+    let flat = e1.cross(e2).normalize_or_zero();
+    if !(det.abs() > 0.0) || flat == Vec3::ZERO {
+        return None;
+    }
+    let tangent = (e1 * d2.y - e2 * d1.y) / det;
+    let bitangent = (e2 * d1.x - e1 * d2.x) / det;
+    if !tangent.is_finite() || !bitangent.is_finite() {
+        return None;
+    }
+    let mut out = [Vec4::ZERO; 3];
+    for (k, o) in out.iter_mut().enumerate() {
+        let n = v
+            .normals
+            .as_ref()
+            .and_then(|ns| ns.get(t[k] as usize).copied())
+            .filter(|n| n.is_finite() && n.length_squared() > 0.0)
+            .map(Vec3::normalize)
+            .unwrap_or(flat);
+        let tn = (tangent - n * n.dot(tangent)).normalize_or_zero();
+        if tn == Vec3::ZERO {
+            return None;
+        }
+        let w = if n.cross(tn).dot(bitangent) < 0.0 { -1.0 } else { 1.0 };
+        *o = tn.extend(w);
+    }
+    Some(out)
 }
 
-impl mikktspace::Geometry for MikkGeometry<'_> {
-    fn num_faces(&self) -> usize {
-        self.tris.len()
+#[cfg(test)]
+mod tangent_tests {
+    use super::*;
+
+    fn quad(uvs: Vec<Vec2>) -> (Vertices, Vec<Vec2>) {
+        let v = Vertices {
+            positions: vec![Vec3::ZERO, Vec3::X, Vec3::Y],
+            normals: None,
+            uvs: Some(uvs.clone()),
+            tangents: None,
+            indices: vec![0, 1, 2],
+        };
+        (v, uvs)
     }
 
-    fn num_vertices_of_face(&self, _face: usize) -> usize {
-        3
-    }
-
-    fn position(&self, face: usize, vert: usize) -> [f32; 3] {
-        self.v.positions[self.tris[face][vert] as usize].to_array()
-    }
-
-    fn normal(&self, face: usize, vert: usize) -> [f32; 3] {
-        match &self.v.normals {
-            Some(n) => n[self.tris[face][vert] as usize].to_array(),
-            None => {
-                let p = self.tris[face].map(|i| self.v.positions[i as usize]);
-                (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero().to_array()
-            }
+    #[test]
+    fn tangent_follows_u_and_handedness_follows_v() {
+        let (v, uv) = quad(vec![Vec2::ZERO, Vec2::X, Vec2::Y]);
+        let t = triangle_tangents(&v, &uv, &[0, 1, 2]).unwrap();
+        for c in t {
+            assert!((c.truncate() - Vec3::X).length() < 1e-6 && c.w == 1.0, "{c}");
         }
+        // v running the other way: the bitangent flips, so does w.
+        let (v, uv) = quad(vec![Vec2::ZERO, Vec2::X, -Vec2::Y]);
+        let t = triangle_tangents(&v, &uv, &[0, 1, 2]).unwrap();
+        assert!(t.iter().all(|c| c.w == -1.0));
+        // u along y: the tangent is y.
+        let (v, uv) = quad(vec![Vec2::ZERO, Vec2::Y, Vec2::X]);
+        let t = triangle_tangents(&v, &uv, &[0, 1, 2]).unwrap();
+        assert!((t[0].truncate() - Vec3::Y).length() < 1e-6);
     }
 
-    fn tex_coord(&self, face: usize, vert: usize) -> [f32; 2] {
-        match &self.v.uvs {
-            Some(uv) => uv
-                .get(self.tris[face][vert] as usize)
-                .copied()
-                .unwrap_or(Vec2::ZERO)
-                .to_array(),
-            None => [0.0; 2],
-        }
-    }
-
-    fn set_tangent_encoded(&mut self, tangent: [f32; 4], face: usize, vert: usize) {
-        self.out[face][vert] = Vec4::from(tangent);
+    #[test]
+    fn degenerate_triangles_and_uvs_give_none_not_nan() {
+        let (v, uv) = quad(vec![Vec2::ZERO, Vec2::X, Vec2::X * 2.0]);
+        assert!(triangle_tangents(&v, &uv, &[0, 1, 2]).is_none());
+        let (mut v, uv) = quad(vec![Vec2::ZERO, Vec2::X, Vec2::Y]);
+        v.positions = vec![Vec3::ONE; 3];
+        assert!(triangle_tangents(&v, &uv, &[0, 1, 2]).is_none());
+        let (v, uv) = quad(vec![Vec2::ZERO, Vec2::X, Vec2::Y]);
+        assert!(triangle_tangents(&v, &uv, &[0, 1, 7]).is_none());
     }
 }
