@@ -342,8 +342,9 @@ def test_passes_update_the_result_as_they_finish(addon, binary, tmp_path, monkey
 
 
 def test_esc_keeps_the_pass_that_was_running(addon, binary, tmp_path, monkeypatch):
-    """Esc during the first pass of many: the renderer finishes that pass, writes it and exits
-    0; the result is that pass's image (the command line's one-pass image)."""
+    """Esc during the first pass of many: the renderer finishes the pass it is running, writes
+    it and exits 0; the result is that pass's image (the command line's image with as many
+    passes). Which pass was running when Esc arrived depends on timing: the add-on polls."""
     scene = build_scene(tmp_path)
     scene.photongrid.passes = 500
     started, rendering = [], []
@@ -375,25 +376,27 @@ def test_esc_keeps_the_pass_that_was_running(addon, binary, tmp_path, monkeypatc
     proc = started[0]
     assert proc.poll() == 0, "the renderer wrote the pass and exited by itself"
     counts = [(a[4] if len(a) > 4 else k.get("count"), k.get("final", False)) for a, k in shown]
-    assert counts == [(1, True)], counts
+    assert counts[-1][1] and 1 <= counts[-1][0] < 500, counts
+    n = counts[-1][0]
     glb = tmp_path / "reference.glb"
     export_reference_glb(glb)
-    ref = read_exr(cli_render(binary, glb, tmp_path / "cli1.exr"))
+    ref = read_exr(cli_render(binary, glb, tmp_path / "cli1.exr", extra=("--passes", str(n))))
     got = read_exr(tmp_path / "blender.exr")
     assert ref[..., :3].mean() > 1e-3
     assert np.allclose(got[..., :3], ref[..., :3], rtol=1e-4, atol=1e-6)
 
 
 def test_esc_after_the_first_pass_keeps_an_image(addon, binary, tmp_path, monkeypatch):
-    """Esc once the first pass is shown: the result keeps at least that pass (the one running
-    is finished too), never nothing, and the process is gone."""
+    """Esc once the first pass is shown: the result keeps at least that pass (a pass already
+    running is finished too; whether the second had started when Esc came depends on timing),
+    never nothing, and the process is gone."""
     scene = build_scene(tmp_path)
     scene.photongrid.passes = 500
     shown = watch(monkeypatch, "show_image")
     monkeypatch.setattr(photongrid.PhotongridRenderEngine, "cancel_requested", lambda self: bool(shown))
     bpy.ops.render.render(write_still=True)
     counts = [(a[4] if len(a) > 4 else k.get("count"), k.get("final", False)) for a, k in shown]
-    assert counts[0] == (1, False) and counts[-1][1] and 2 <= counts[-1][0] < 500, counts
+    assert counts[0] == (1, False) and counts[-1][1] and 1 <= counts[-1][0] < 500, counts
     glb = tmp_path / "reference.glb"
     export_reference_glb(glb)
     n = counts[-1][0]
