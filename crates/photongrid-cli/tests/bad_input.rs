@@ -4,56 +4,10 @@
 use photongrid_testkit::*;
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
 
-struct Run {
-    code: Option<i32>,
-    stdout: String,
-    stderr: String,
-    seconds: f64,
-}
-
-impl Run {
-    fn ok(&self) -> bool {
-        self.code == Some(0)
-    }
-}
-
-/// Run the binary with `args`, stdout and stderr into files of `dir` (so a chatty child cannot
-/// block), killed after 120 s so a hang fails the test instead of stalling it.
+/// The photongrid binary with `args` ([`run_binary`]).
 fn run(dir: &TempDir, args: &[&str]) -> Run {
-    static N: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-    let n = N.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let out_path = dir.join(&format!("stdout-{n}.txt"));
-    let err_path = dir.join(&format!("stderr-{n}.txt"));
-    let start = Instant::now();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_photongrid"))
-        .args(args)
-        .env_remove("RUST_LOG")
-        .env("RUST_BACKTRACE", "0")
-        .stdin(Stdio::null())
-        .stdout(std::fs::File::create(&out_path).unwrap())
-        .stderr(std::fs::File::create(&err_path).unwrap())
-        .spawn()
-        .expect("start photongrid");
-    let status = loop {
-        if let Some(s) = child.try_wait().unwrap() {
-            break s;
-        }
-        if start.elapsed() > Duration::from_secs(120) {
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("photongrid {args:?} did not finish within 120 s");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    Run {
-        code: status.code(),
-        stdout: std::fs::read_to_string(&out_path).unwrap_or_default(),
-        stderr: std::fs::read_to_string(&err_path).unwrap_or_default(),
-        seconds: start.elapsed().as_secs_f64(),
-    }
+    run_binary(Path::new(env!("CARGO_BIN_EXE_photongrid")), dir, args)
 }
 
 /// `render <scene> -o <dir>/out.exr` at tiny settings, plus `extra`.

@@ -6,48 +6,12 @@
 use photongrid_testkit::*;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::process::Command;
+use std::time::Duration;
 
-struct Run {
-    code: Option<i32>,
-    stdout: String,
-    stderr: String,
-}
-
-/// Run the binary with `args`, output into files (a chatty child cannot block), killed after
-/// 120 s so that a hang (a FIFO opened for writing) fails the test instead of stalling it.
+/// The photongrid binary with `args` ([`run_binary`]).
 fn run(dir: &TempDir, args: &[&str]) -> Run {
-    static N: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-    let n = N.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let out_path = dir.join(&format!("stdout-{n}.txt"));
-    let err_path = dir.join(&format!("stderr-{n}.txt"));
-    let start = Instant::now();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_photongrid"))
-        .args(args)
-        .env_remove("RUST_LOG")
-        .env("RUST_BACKTRACE", "0")
-        .stdin(Stdio::null())
-        .stdout(std::fs::File::create(&out_path).unwrap())
-        .stderr(std::fs::File::create(&err_path).unwrap())
-        .spawn()
-        .expect("start photongrid");
-    let status = loop {
-        if let Some(s) = child.try_wait().unwrap() {
-            break s;
-        }
-        if start.elapsed() > Duration::from_secs(120) {
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("photongrid {args:?} did not finish within 120 s");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    Run {
-        code: status.code(),
-        stdout: std::fs::read_to_string(&out_path).unwrap_or_default(),
-        stderr: std::fs::read_to_string(&err_path).unwrap_or_default(),
-    }
+    run_binary(Path::new(env!("CARGO_BIN_EXE_photongrid")), dir, args)
 }
 
 /// `render <scene>` at tiny settings plus `extra` (which must give the outputs).

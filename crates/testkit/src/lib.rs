@@ -952,3 +952,61 @@ pub fn png_header_only(width: u32, height: u32) -> Vec<u8> {
         &[0x78, 0x01, 0x01, 0x00, 0x00, 0xff, 0xff, 0, 0, 0, 1],
     )
 }
+
+/// What a run of a binary printed and how it ended.
+pub struct Run {
+    /// Exit code (None: killed by a signal).
+    pub code: Option<i32>,
+    /// Standard output.
+    pub stdout: String,
+    /// Standard error.
+    pub stderr: String,
+    /// Wall time.
+    pub seconds: f64,
+}
+
+impl Run {
+    /// Exit code 0.
+    pub fn ok(&self) -> bool {
+        self.code == Some(0)
+    }
+}
+
+/// Run `binary` with `args`, stdout and stderr into files of `dir` (so a chatty child cannot
+/// block), killed after 120 s so a hang (a FIFO opened for writing) fails the test instead of
+/// stalling it.
+pub fn run_binary(binary: &std::path::Path, dir: &TempDir, args: &[&str]) -> Run {
+    use std::process::{Command, Stdio};
+    use std::time::{Duration, Instant};
+    static N: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let n = N.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let out_path = dir.join(&format!("stdout-{n}.txt"));
+    let err_path = dir.join(&format!("stderr-{n}.txt"));
+    let start = Instant::now();
+    let mut child = Command::new(binary)
+        .args(args)
+        .env_remove("RUST_LOG")
+        .env("RUST_BACKTRACE", "0")
+        .stdin(Stdio::null())
+        .stdout(std::fs::File::create(&out_path).unwrap())
+        .stderr(std::fs::File::create(&err_path).unwrap())
+        .spawn()
+        .expect("start the binary");
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if start.elapsed() > Duration::from_secs(120) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("{} {args:?} did not finish within 120 s", binary.display());
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    Run {
+        code: status.code(),
+        stdout: std::fs::read_to_string(&out_path).unwrap_or_default(),
+        stderr: std::fs::read_to_string(&err_path).unwrap_or_default(),
+        seconds: start.elapsed().as_secs_f64(),
+    }
+}
