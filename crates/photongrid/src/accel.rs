@@ -1,7 +1,8 @@
 //! Ray queries against the scene's triangles: an obvhs CWBVH with closest-hit and shadow rays.
 
-use crate::scene::Triangle;
-use glam::{Vec3, Vec3A};
+use crate::scene::material::{AlphaMode, Material, Texture};
+use crate::scene::{Scene, Triangle};
+use glam::{Vec2, Vec3, Vec3A};
 use obvhs::cwbvh::CwBvh;
 use obvhs::ray::{Ray, RayHit};
 use obvhs::rt_triangle::RtTriangle;
@@ -28,6 +29,95 @@ pub struct Accel {
     /// (`cwbvh::node::EPSILON`), which would hide a whole scene of 10⁻⁵ m. A power of two
     /// scales exactly, so a scene of diagonal 4 to 8 keeps 1 and the same bits.
     scale: f32,
+    /// Alpha coverage of the triangles whose material has alpha (None: every triangle opaque).
+    coverage: Option<Coverage>,
+}
+
+/// The triangles with alpha, tested inside traversal: a hit where a MASK material's alpha is
+/// below its cutoff, or a BLEND material's stochastic coverage says no, is not a hit — for
+/// camera rays, shadow rays and photons alike.
+struct Coverage {
+    /// Per scene triangle: index into `shapes`, or `u32::MAX` for an opaque triangle.
+    of_triangle: Vec<u32>,
+    /// Position, edges and texture coordinates of each triangle with alpha, and its material.
+    shapes: Vec<(Vec3, Vec3, Vec3, [Vec2; 3], u32)>,
+    /// The scene's materials and textures (alpha is read from them).
+    materials: Vec<Material>,
+    textures: Vec<Texture>,
+}
+
+impl Coverage {
+    fn of(scene: &Scene) -> Option<Coverage> {
+        if !scene.has_alpha() {
+            return None;
+        }
+        let mut of_triangle = vec![u32::MAX; scene.triangles.len()];
+        let mut shapes = Vec::new();
+        for (i, t) in scene.triangles.iter().enumerate() {
+            if scene.materials[t.material as usize].has_alpha() {
+                of_triangle[i] = shapes.len() as u32;
+                shapes.push((t.p[0], t.p[1] - t.p[0], t.p[2] - t.p[0], t.uv, t.material));
+            }
+        }
+        Some(Coverage {
+            of_triangle,
+            shapes,
+            materials: scene.materials.clone(),
+            textures: scene.textures.clone(),
+        })
+    }
+
+    /// Whether scene triangle `triangle` is there at the (unscaled) point `p` for the ray
+    /// `ray` (whose bits key the stochastic choice of BLEND coverage).
+    fn covers(&self, triangle: u32, p: Vec3, ray: &Ray) -> bool {
+        let k = self.of_triangle[triangle as usize];
+        if k == u32::MAX {
+            return true;
+        }
+        let (p0, e1, e2, uv, material) = self.shapes[k as usize];
+        let (b1, b2) = barycentric(p - p0, e1, e2);
+        let uv = uv[0] * (1.0 - b1 - b2) + uv[1] * b1 + uv[2] * b2;
+        let m = &self.materials[material as usize];
+        let alpha = m.alpha_at(&self.textures, uv);
+        match m.alpha_mode {
+            AlphaMode::Opaque => true,
+            AlphaMode::Mask { cutoff } => alpha >= cutoff,
+            AlphaMode::Blend => coverage_uniform(ray, triangle) < alpha,
+        }
+    }
+}
+
+/// Barycentric coordinates (b1, b2) of the point `v = p − p0` in the plane of the edges `e1`,
+/// `e2` (`p = p0 + b1·e1 + b2·e2`), clamped into the triangle.
+fn barycentric(v: Vec3, e1: Vec3, e2: Vec3) -> (f32, f32) {
+    let (d00, d01, d11) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+    let (d20, d21) = (v.dot(e1), v.dot(e2));
+    let det = d00 * d11 - d01 * d01;
+    if !(det.abs() > 0.0) {
+        return (1.0 / 3.0, 1.0 / 3.0);
+    }
+    let b1 = ((d11 * d20 - d01 * d21) / det).clamp(0.0, 1.0);
+    let b2 = ((d00 * d21 - d01 * d20) / det).clamp(0.0, 1.0 - b1);
+    (b1, b2)
+}
+
+/// A uniform number in [0, 1) from the bits of a ray and a triangle: stochastic coverage that
+/// stays the same whenever traversal tests that triangle again for that ray, and changes from
+/// ray to ray (each path's rays start elsewhere or go elsewhere).
+fn coverage_uniform(ray: &Ray, triangle: u32) -> f32 {
+    let mut h = triangle as u64 ^ 0x9e37_79b9_7f4a_7c15;
+    for v in [
+        ray.origin.x,
+        ray.origin.y,
+        ray.origin.z,
+        ray.direction.x,
+        ray.direction.y,
+        ray.direction.z,
+    ] {
+        h = (h ^ v.to_bits() as u64).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        h ^= h >> 31;
+    }
+    (h >> 40) as f32 / (1u64 << 24) as f32
 }
 
 /// The power of two that brings a diagonal `d` into [4, 8) (1 for a diagonal that is zero or
@@ -68,6 +158,32 @@ impl Accel {
             tris: rt,
             original,
             scale,
+            coverage: None,
+        }
+    }
+
+    /// Build the BVH over the scene's triangles, with alpha coverage where materials have alpha.
+    pub fn for_scene(scene: &Scene) -> Self {
+        Accel {
+            coverage: Coverage::of(scene),
+            ..Accel::build(&scene.triangles)
+        }
+    }
+
+    /// The triangle test of traversal: the distance to entry `id` of `tris`, infinite where
+    /// alpha cuts the triangle away.
+    fn test(&self, r: &Ray, id: usize) -> f32 {
+        let t = self.tris[id].intersect(r);
+        match &self.coverage {
+            Some(c) if t < f32::INFINITY => {
+                let p = Vec3::from(r.origin + r.direction * t) / self.scale;
+                if c.covers(self.original[id], p, r) {
+                    t
+                } else {
+                    f32::INFINITY
+                }
+            }
+            _ => t,
         }
     }
 
@@ -75,7 +191,7 @@ impl Accel {
     pub fn intersect(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit> {
         let ray = self.ray(origin, dir, tmax);
         let mut hit = RayHit::none();
-        if self.bvh.ray_traverse(ray, &mut hit, |r, id| self.tris[id].intersect(r)) {
+        if self.bvh.ray_traverse(ray, &mut hit, |r, id| self.test(r, id)) {
             Some(Hit {
                 t: hit.t / self.scale,
                 triangle: self.original[hit.primitive_id as usize],
@@ -88,7 +204,7 @@ impl Accel {
     /// True if anything blocks the segment from `origin` along `dir` up to `tmax`.
     pub fn occluded(&self, origin: Vec3, dir: Vec3, tmax: f32) -> bool {
         let ray = self.ray(origin, dir, tmax);
-        !self.bvh.ray_traverse_miss(ray, |r, id| self.tris[id].intersect(r))
+        !self.bvh.ray_traverse_miss(ray, |r, id| self.test(r, id))
     }
 
     /// The ray in the BVH's scaled space (distances scale with it; the direction is kept).

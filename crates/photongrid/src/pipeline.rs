@@ -252,6 +252,10 @@ pub struct RenderReport {
     pub cameras: Vec<CameraReport>,
     /// The grids, when the estimate used them.
     pub grids: Option<GridReport>,
+    /// What the loader approximated, one entry per material or light and feature
+    /// (`materials[i] 'Name': what`), so that a stats reader sees what the image is not.
+    #[serde(default)]
+    pub approximations: Vec<String>,
 }
 
 /// The images and the report of a render, and the grids for inspection (`--dump-grids`).
@@ -364,6 +368,7 @@ pub fn render(
         version: env!("CARGO_PKG_VERSION").to_string(),
         settings: settings.clone(),
         threads: rayon::current_num_threads(),
+        approximations: scene.report.approximated.clone(),
         ..RenderReport::default()
     };
     let times = &mut report.seconds;
@@ -452,7 +457,7 @@ fn build_accel(scene: &Scene, progress: &Progress<'_>, times: &mut PhaseTimes) -
     let phase = progress.phase("bvh", 0);
     let accel = {
         let _s = tracing::info_span!("bvh", triangles = scene.triangles.len()).entered();
-        Accel::build(&scene.triangles)
+        Accel::for_scene(scene)
     };
     times.bvh += phase.finish();
     accel

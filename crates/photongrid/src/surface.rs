@@ -150,6 +150,15 @@ impl SurfacePoint {
     pub fn magnitude(&self) -> f32 {
         self.position.abs().max_element()
     }
+
+    /// Where a shadow ray leaving this point at [`SurfacePoint::offset`] must stop before a
+    /// light sample `distance` away from [`SurfacePoint::position`]: the offset origin may lie
+    /// up to [`SurfacePoint::eps`] closer to the light (a large triangle's offset exceeds the
+    /// light's own margin, and the ray then hit the emitter it aimed at), so that is taken off
+    /// as well as the margin at the light's end ([`shadow_tmax`]).
+    pub fn shadow_tmax(&self, distance: f32, scene_diagonal: f32) -> f32 {
+        (shadow_tmax(self.magnitude(), distance, scene_diagonal) - self.eps).max(0.0)
+    }
 }
 
 /// The shading normal of a tangent-space normal map (glTF spec 3.9.3): the texel `c` read as

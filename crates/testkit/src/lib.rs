@@ -177,6 +177,12 @@ pub struct Material {
     pub volume: Option<(f32, f32, [f32; 3])>,
     /// doubleSided.
     pub double_sided: bool,
+    /// KHR_materials_specular specularFactor: `Some(0.0)` by default, so that the builder's
+    /// dielectrics are Lambert surfaces (glTF's default without the extension is 1, a GGX layer
+    /// over the diffuse base); None writes no extension.
+    pub specular: Option<f32>,
+    /// alphaMode (`"MASK"` or `"BLEND"`) and alphaCutoff; None: OPAQUE.
+    pub alpha_mode: Option<(&'static str, Option<f32>)>,
 }
 
 impl Default for Material {
@@ -192,6 +198,8 @@ impl Default for Material {
             ior: None,
             volume: None,
             double_sided: false,
+            specular: Some(0.0),
+            alpha_mode: None,
         }
     }
 }
@@ -499,6 +507,12 @@ impl Gltf {
         if let Some(n) = &m.name {
             v["name"] = json!(n);
         }
+        if let Some((mode, cutoff)) = m.alpha_mode {
+            v["alphaMode"] = json!(mode);
+            if let Some(c) = cutoff {
+                v["alphaCutoff"] = json!(c);
+            }
+        }
         if m.emissive != [0.0; 3] {
             v["emissiveFactor"] = json!(m.emissive);
         }
@@ -513,6 +527,10 @@ impl Gltf {
         if let Some(t) = m.transmission {
             self.use_extension("KHR_materials_transmission");
             ext.insert("KHR_materials_transmission".into(), json!({ "transmissionFactor": t }));
+        }
+        if let Some(f) = m.specular {
+            self.use_extension("KHR_materials_specular");
+            ext.insert("KHR_materials_specular".into(), json!({ "specularFactor": f }));
         }
         if let Some(i) = m.ior {
             self.use_extension("KHR_materials_ior");

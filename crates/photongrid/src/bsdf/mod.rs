@@ -17,10 +17,10 @@ use glam::{Vec2, Vec3};
 pub use metallic_roughness::{LobeMask, Lobes};
 
 /// Roughness from which a glTF reflection lobe is rendered from photons (photons are stored
-/// there and the estimate weights each by the BSDF); below it, the lobe is traced like a
-/// mirror: photons pass on (caustics) and camera rays follow it. Not measured yet: the glTF
-/// lobes are not wired into the photon and camera passes (issue 10), so this value only
-/// labels materials in `photongrid info`.
+/// there; the camera turns their irradiance into radiance with the lobe's albedo, as if the
+/// indirect light arrived evenly); below it, the lobe is traced: photons pass on (caustics) and
+/// camera rays follow it, weighted against light sampling. Chosen by measurement against the
+/// Cycles references of `bench/materials`: see `docs/materials.md`.
 pub const GLOSSY_ROUGHNESS: f32 = 0.4;
 
 /// Mirror reflection of `d` (pointing towards the surface) about `n`.
@@ -166,7 +166,7 @@ pub struct Scatter {
 
 /// Beer–Lambert transmittance of the path inside a dielectric that ends at this hit: the ray
 /// hit the back face, so it travelled `distance` through the material.
-fn absorption(surface: &Surface, sp: &SurfacePoint, distance: f32) -> Rgb {
+pub fn absorption(surface: &Surface, sp: &SurfacePoint, distance: f32) -> Rgb {
     match surface {
         Surface::Dielectric {
             absorption: Some(sigma),
@@ -311,6 +311,39 @@ pub fn sample(scene: &Scene, d: Vec3, sp: &SurfacePoint, distance: f32, rng: &mu
     }
 }
 
+/// Power-heuristic weight (Veach 1997, §9.2.4, β = 2) of a sample drawn by a strategy taking
+/// `n_a` samples with density `p_a`, combined with one taking `n_b` samples with density `p_b`
+/// (same measure). The weights of the two strategies for one direction sum to one.
+pub fn mis_weight(n_a: f32, p_a: f32, n_b: f32, p_b: f32) -> f32 {
+    let (a, b) = ((n_a * p_a).powi(2), (n_b * p_b).powi(2));
+    if a + b > 0.0 && (a + b).is_finite() {
+        a / (a + b)
+    } else if p_a.is_infinite() {
+        1.0
+    } else {
+        0.0
+    }
+}
+
+/// The photon step at a glTF surface: whether photons are stored there (it has a lobe rendered
+/// from photons), and the continuation sampled over every lobe (absorption included).
+pub fn gltf_photon_step(
+    scene: &Scene,
+    m: &MetallicRoughness,
+    d: Vec3,
+    sp: &SurfacePoint,
+    distance: f32,
+    rng: &mut Rng,
+) -> (bool, Option<Sampled>) {
+    let g = GltfPoint::at(scene, m, sp, d);
+    let a = absorption(&scene.materials[sp.material as usize].surface, sp, distance);
+    let s = g.sample_split(rng).map(|s| Sampled {
+        weight: s.weight * a,
+        ..s
+    });
+    (!g.stored.is_empty(), s)
+}
+
 /// The glTF BSDF at a hit with its shading frame, ready to sample and evaluate in world space.
 #[derive(Clone, Copy, Debug)]
 pub struct GltfPoint {
@@ -384,6 +417,15 @@ impl GltfPoint {
             self.lobes.eval(self.wo, l, self.inside, mask),
             self.lobes.pdf(self.wo, l, self.inside, mask),
         )
+    }
+
+    /// `f(wo, wi)` of the lobes in `mask` alone (light sampling without a density to weigh).
+    pub fn f(&self, wi: Vec3, mask: LobeMask) -> Rgb {
+        let l = self.local(wi);
+        if mask.is_empty() || !self.consistent(wi, l) {
+            return Rgb::ZERO;
+        }
+        self.lobes.eval(self.wo, l, self.inside, mask)
     }
 
     /// Sample the lobes in `mask` with the random numbers `u_lobe`, `u`.

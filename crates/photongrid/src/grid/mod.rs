@@ -109,7 +109,7 @@ impl Grids {
         let receives: Vec<bool> = scene
             .triangles
             .iter()
-            .map(|t| !scene.materials[t.material as usize].is_specular())
+            .map(|t| scene.materials[t.material as usize].receives_photons())
             .collect();
         let total_area = scene
             .triangles

@@ -32,7 +32,7 @@ impl PlaneGrids {
     /// they get no grid. Triangle indices are the scene's.
     pub fn detect_receivers(scene: &crate::scene::Scene, resolution: usize) -> PlaneSet {
         let receivers: Vec<u32> = (0..scene.triangles.len() as u32)
-            .filter(|&t| !scene.materials[scene.triangles[t as usize].material as usize].is_specular())
+            .filter(|&t| scene.materials[scene.triangles[t as usize].material as usize].receives_photons())
             .collect();
         let tris: Vec<[Vec3; 3]> = receivers.iter().map(|&t| scene.triangles[t as usize].p).collect();
         let mut set = detect_planes(&tris, &PlaneParams::default().with_resolution(resolution));

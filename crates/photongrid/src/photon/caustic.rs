@@ -155,7 +155,7 @@ impl SpecularTargets {
                     flux: *irradiance / pdf.max(f32::MIN_POSITIVE),
                 })
             }
-            Light::Emissive { triangles, cdf } => {
+            Light::Emissive { triangles, cdf, .. } => {
                 let i = cdf.sample(rng.uniform());
                 let tri = &triangles[i];
                 let p_tri = cdf.pmf_of(power_weight(tri.power()));

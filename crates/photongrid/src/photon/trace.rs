@@ -7,6 +7,7 @@ use crate::accel::Accel;
 use crate::bsdf;
 use crate::sampling::{self, stream, Rng};
 use crate::scene::light::LightSampler;
+use crate::scene::material::MetallicRoughness;
 use crate::scene::{Scene, Surface};
 use crate::surface::SurfacePoint;
 use crate::Rgb;
@@ -217,6 +218,66 @@ impl Out {
             self.triangles.push(triangle);
         }
     }
+
+    /// Store a photon of `power` that arrived along `dir` at `sp` after `depth` interactions.
+    fn store(&mut self, sp: &SurfacePoint, dir: Vec3, power: Rgb, kind: PhotonKind, depth: u32, rng: &mut Rng) {
+        // Stochastic rounding of the power: the photons share a few exact powers, which nearest
+        // rounding would bias all alike (see `rgbe_encode_dithered`). One uniform for all
+        // channels: each is unbiased, and grey stays grey.
+        let dither = Vec3::splat(rng.uniform());
+        let p = Photon::dithered(sp.position, power, sp.facing_normal, -dir, kind, dither).with_depth(depth);
+        self.push(p, sp.triangle);
+    }
+}
+
+/// Whether a photon of `kind` reaching a surface that stores photons is stored by `pass`: each
+/// kind belongs to exactly one pass.
+fn stores(pass: PassKind, kind: PhotonKind, settings: &TraceSettings) -> bool {
+    match (pass, kind) {
+        (PassKind::Caustic, PhotonKind::Caustic) => true,
+        (PassKind::Caustic, _) => false,
+        (PassKind::Global { store_caustic }, PhotonKind::Caustic) => store_caustic,
+        (PassKind::Global { .. }, PhotonKind::Direct) => settings.store_direct,
+        (PassKind::Global { .. }, PhotonKind::Indirect) => true,
+    }
+}
+
+/// A photon (`power`, `kind`) at a glTF surface: stored if the surface has a lobe rendered from
+/// photons, then continued by sampling the BSDF with Russian roulette. Returns the next origin,
+/// direction, power and kind, or None where the path ends.
+#[allow(clippy::too_many_arguments)]
+fn gltf_step(
+    scene: &Scene,
+    settings: &TraceSettings,
+    pass: PassKind,
+    m: &MetallicRoughness,
+    (sp, dir, distance, depth): (&SurfacePoint, Vec3, f32, u32),
+    (power, kind): (Rgb, PhotonKind),
+    rng: &mut Rng,
+    out: &mut Out,
+) -> Option<(Vec3, Vec3, Rgb, PhotonKind)> {
+    let (stored, s) = bsdf::gltf_photon_step(scene, m, dir, sp, distance, rng);
+    if stored && stores(pass, kind, settings) {
+        out.store(sp, dir, power, kind, depth, rng);
+    }
+    let s = s?;
+    // The caustic pass follows light through traced lobes only; a photon leaving by a stored
+    // lobe belongs to the global pass.
+    if pass == PassKind::Caustic && !s.traced {
+        return None;
+    }
+    let c = bsdf::adjoint_shading_correction(-dir, s.direction, sp.facing_normal, sp.facing_shading_normal)?;
+    // Russian roulette by the sampled throughput keeps the power nearly constant.
+    let q = s.weight.max_element().min(1.0);
+    if !(q > 0.0) || rng.uniform() >= q {
+        return None;
+    }
+    let kind = match (s.traced, kind) {
+        (true, PhotonKind::Direct) => PhotonKind::Caustic,
+        (true, k) => k,
+        (false, _) => PhotonKind::Indirect,
+    };
+    Some((sp.offset(s.direction), s.direction, power * (s.weight / q * c), kind))
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -237,29 +298,14 @@ fn trace_path(
             return;
         };
         let sp = SurfacePoint::new(scene, origin, dir, hit);
-        let material = &scene.materials[sp.material as usize];
-        match &material.surface {
+        match &scene.materials[sp.material as usize].surface {
             Surface::Lambert { .. } => {
                 let albedo = sp.albedo(scene);
                 if albedo.max_element() <= 0.0 {
                     return;
                 }
-                let store = match (pass, kind) {
-                    (PassKind::Caustic, PhotonKind::Caustic) => true,
-                    (PassKind::Caustic, _) => false,
-                    (PassKind::Global { store_caustic }, PhotonKind::Caustic) => store_caustic,
-                    (PassKind::Global { .. }, PhotonKind::Direct) => settings.store_direct,
-                    (PassKind::Global { .. }, PhotonKind::Indirect) => true,
-                };
-                if store {
-                    // Stochastic rounding of the power: the photons share a few exact powers,
-                    // which nearest rounding would bias all alike (see `rgbe_encode_dithered`).
-                    // One uniform for all channels: each is unbiased, and grey stays grey.
-                    let dither = Vec3::splat(rng.uniform());
-                    out.push(
-                        Photon::dithered(sp.position, power, sp.facing_normal, -dir, kind, dither).with_depth(depth),
-                        hit.triangle,
-                    );
+                if stores(pass, kind, settings) {
+                    out.store(&sp, dir, power, kind, depth, rng);
                 }
                 if pass == PassKind::Caustic {
                     return; // the caustic pass ends at the first diffuse surface
@@ -276,6 +322,13 @@ fn trace_path(
                 }
                 origin = sp.offset(dir);
                 kind = PhotonKind::Indirect;
+            }
+            Surface::Gltf(m) => {
+                let at = (&sp, dir, hit.t, depth);
+                let Some(next) = gltf_step(scene, settings, pass, m, at, (power, kind), rng, out) else {
+                    return;
+                };
+                (origin, dir, power, kind) = next;
             }
             surface => {
                 let Some(s) = bsdf::sample_specular(surface, dir, &sp, hit.t, rng) else {

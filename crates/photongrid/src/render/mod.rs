@@ -15,6 +15,7 @@ use crate::Rgb;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
+mod gltf;
 pub mod progressive;
 pub mod sppm;
 
@@ -41,6 +42,9 @@ pub struct RenderSettings {
     pub gather: u32,
 }
 
+/// Mirror and glass bounces a final-gather ray follows.
+const MAX_GATHER_DEPTH: u32 = 4;
+
 /// Per-thread state of the camera pass.
 struct Tracer<'a> {
     scene: &'a Scene,
@@ -48,6 +52,8 @@ struct Tracer<'a> {
     photons: PhotonData<'a>,
     settings: &'a RenderSettings,
     knn: KnnBuffer,
+    /// Set for the ray a glTF lobe sampled (`gltf.rs`): weights the emission it finds.
+    mis: Option<gltf::MisRay>,
 }
 
 impl<'a> Tracer<'a> {
@@ -58,6 +64,7 @@ impl<'a> Tracer<'a> {
             photons,
             settings,
             knn: KnnBuffer::default(),
+            mis: None,
         }
     }
 }
@@ -140,6 +147,7 @@ fn camera_ray(
 
 impl Tracer<'_> {
     fn radiance(&mut self, o: Vec3, d: Vec3, depth: u32, rng: &mut Rng, aov: &mut Option<&mut Aov>) -> Rgb {
+        let mis = self.mis.take();
         let Some(hit) = self.accel.intersect(o, d, f32::INFINITY) else {
             return Rgb::ZERO; // black world, as the reference scenes
         };
@@ -153,10 +161,14 @@ impl Tracer<'_> {
         }
         let mut l = Rgb::ZERO;
         if material.is_emissive() && (material.double_sided || !sp.backface) {
-            l += material.emission_at(&self.scene.textures, sp.uv); // the emissive texture as the camera sees it
+            // The emissive texture as the camera sees it.
+            l += material.emission_at(&self.scene.textures, sp.uv) * self.emission_weight(mis, &sp, &hit, d);
         }
         if let Surface::Lambert { .. } = material.surface {
             return l + self.diffuse(&sp, rng, aov);
+        }
+        if let Surface::Gltf(m) = &material.surface {
+            return l + self.gltf(m, &sp, (d, hit.t, depth), rng, aov);
         }
         if depth >= self.settings.max_specular_depth {
             return l;
@@ -235,21 +247,28 @@ impl Tracer<'_> {
         let sp = SurfacePoint::new(self.scene, o, d, hit);
         let surface = &self.scene.materials[sp.material as usize].surface;
         if let Surface::Lambert { .. } = surface {
-            let e = match self.photons.estimator.grid_irradiance(sp.triangle, sp.position) {
-                Some(e) => e,
-                None => match self.photons.irradiance {
-                    Some(cache) => cache.lookup(sp.position, sp.facing_normal, &mut self.knn),
-                    None => Rgb::ZERO,
-                },
-            };
-            return bsdf::lambert(sp.albedo(self.scene)) * e;
+            return bsdf::lambert(sp.albedo(self.scene)) * self.gathered_irradiance(&sp);
         }
-        if depth >= 4 {
+        if let Surface::Gltf(m) = surface {
+            return self.gather_gltf(m, &sp, (d, hit.t, depth), rng);
+        }
+        if depth >= MAX_GATHER_DEPTH {
             return Rgb::ZERO;
         }
         match bsdf::sample_specular(surface, d, &sp, hit.t, rng) {
             Some(s) => s.weight * self.gather_ray(sp.offset(s.direction), s.direction, depth + 1, rng),
             None => Rgb::ZERO,
+        }
+    }
+
+    /// Precomputed irradiance at a surface a gather ray reached (grids, else the cache).
+    fn gathered_irradiance(&mut self, sp: &SurfacePoint) -> Rgb {
+        match self.photons.estimator.grid_irradiance(sp.triangle, sp.position) {
+            Some(e) => e,
+            None => match self.photons.irradiance {
+                Some(cache) => cache.lookup(sp.position, sp.facing_normal, &mut self.knn),
+                None => Rgb::ZERO,
+            },
         }
     }
 
@@ -272,7 +291,7 @@ impl Tracer<'_> {
                     continue;
                 }
                 let origin = sp.offset(inc.wi);
-                let tmax = crate::surface::shadow_tmax(sp.magnitude(), inc.distance, self.scene.bounds.diagonal());
+                let tmax = sp.shadow_tmax(inc.distance, self.scene.bounds.diagonal());
                 if !self.accel.occluded(origin, inc.wi, tmax) {
                     sum += inc.irradiance * cos;
                 }

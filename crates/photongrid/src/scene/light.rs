@@ -105,6 +105,9 @@ pub enum Light {
         triangles: Vec<EmitterTriangle>,
         /// Inclusive CDF of luminous power over `triangles`.
         cdf: Distribution,
+        /// Scene triangle index → index into `triangles` (the light-sampling density of a
+        /// direction that reached an emitter by other means, for multiple importance sampling).
+        by_triangle: std::collections::HashMap<u32, usize>,
     },
 }
 
@@ -117,6 +120,8 @@ pub struct Incident {
     pub distance: f32,
     /// Irradiance on a surface facing `wi` (multiply by the receiver's cosθ).
     pub irradiance: Rgb,
+    /// Solid-angle density with which `wi` was sampled; 0 for a delta light.
+    pub pdf: f32,
 }
 
 /// A photon leaving a light: origin, direction and the flux it stands for (per unit photon).
@@ -142,7 +147,12 @@ impl Light {
             return None;
         }
         let cdf = Distribution::new(triangles.iter().map(|t| power_weight(t.power())));
-        Some(Light::Emissive { triangles, cdf })
+        let by_triangle = triangles.iter().enumerate().map(|(i, t)| (t.triangle, i)).collect();
+        Some(Light::Emissive {
+            triangles,
+            cdf,
+            by_triangle,
+        })
     }
 
     /// Short description for reports.
@@ -249,7 +259,7 @@ impl Light {
                     flux: self.power(),
                 }
             }
-            Light::Emissive { triangles, cdf } => {
+            Light::Emissive { triangles, cdf, .. } => {
                 let i = cdf.sample(rng.uniform());
                 let t = &triangles[i];
                 let pdf = cdf.pmf_of(power_weight(t.power()));
@@ -280,6 +290,7 @@ impl Light {
                     wi: d / dist2.sqrt(),
                     distance: dist2.sqrt(),
                     irradiance: *intensity / dist2,
+                    pdf: 0.0,
                 })
             }
             Light::Spot {
@@ -301,6 +312,7 @@ impl Light {
                     wi,
                     distance: dist2.sqrt(),
                     irradiance: *intensity * mask / dist2,
+                    pdf: 0.0,
                 })
             }
             Light::Directional {
@@ -309,8 +321,9 @@ impl Light {
                 wi: -*direction,
                 distance: f32::INFINITY,
                 irradiance: *irradiance,
+                pdf: 0.0,
             }),
-            Light::Emissive { triangles, cdf } => {
+            Light::Emissive { triangles, cdf, .. } => {
                 let i = cdf.sample(rng.uniform());
                 let t = &triangles[i];
                 let pdf_tri = cdf.pmf_of(power_weight(t.power()));
@@ -325,15 +338,47 @@ impl Light {
                 if cos_l <= 0.0 && !t.double_sided {
                     return None;
                 }
-                // Area sampling: E = L cosθₗ A / (d² · p(tri)).
+                // Area sampling: E = L cosθₗ A / (d² · p(tri)) = L / p(ω).
                 let irradiance = t.radiance * (cos_l.abs() * t.area / (dist2 * pdf_tri.max(1e-30)));
                 Some(Incident {
                     wi,
                     distance: dist2.sqrt(),
                     irradiance,
+                    pdf: emitter_pdf(pdf_tri, t.area, dist2, cos_l),
                 })
             }
         }
+    }
+}
+
+/// Solid-angle density of sampling a point on an emitting triangle (chosen with probability
+/// `p_tri`, area `area`) seen at squared distance `dist2` under the emitter cosine `cos_l`.
+fn emitter_pdf(p_tri: f32, area: f32, dist2: f32, cos_l: f32) -> f32 {
+    p_tri.max(1e-30) * dist2 / (cos_l.abs() * area).max(1e-30)
+}
+
+impl Light {
+    /// The density with which [`Light::incident`] would have sampled the point of scene triangle
+    /// `triangle` that a ray from the receiver reached at distance `distance`, meeting the
+    /// emitter's normal under `cos_l`; 0 if the light cannot sample it (delta lights, other
+    /// triangles).
+    pub fn pdf_hit(&self, triangle: u32, distance: f32, cos_l: f32) -> f32 {
+        let Light::Emissive {
+            triangles,
+            cdf,
+            by_triangle,
+        } = self
+        else {
+            return 0.0;
+        };
+        let Some(&i) = by_triangle.get(&triangle) else {
+            return 0.0;
+        };
+        let t = &triangles[i];
+        if cos_l <= 0.0 && !t.double_sided {
+            return 0.0;
+        }
+        emitter_pdf(cdf.pmf_of(power_weight(t.power())), t.area, distance * distance, cos_l)
     }
 }
 

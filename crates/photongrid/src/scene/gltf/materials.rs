@@ -237,7 +237,7 @@ impl Loader<'_> {
                     "transmission without KHR_materials_volume rendered as a solid (as Blender does), not thin-walled",
                 );
             }
-            return Ok(self.until_transport(mr, element, name));
+            return Ok(Surface::Gltf(Box::new(mr)));
         }
         if mr.metallic >= 1.0 && mr.roughness <= 0.0 && plain {
             return Ok(Surface::Mirror { f0: base_rgb });
@@ -249,57 +249,7 @@ impl Loader<'_> {
                 texture: mr.base_color_texture,
             });
         }
-        Ok(self.until_transport(mr, element, name))
-    }
-
-    /// The surface a material that needs the glTF BSDF renders as while the photon and camera
-    /// passes do not trace [`Surface::Gltf`] yet (issue 10, step b): the earlier approximations
-    /// (glass, mirror or Lambert), each reported.
-    fn until_transport(&mut self, mr: MetallicRoughness, element: &str, name: &str) -> Surface {
-        let (metallic, roughness, transmission) = (mr.metallic, mr.roughness, mr.transmission);
-        if transmission > 0.0 {
-            if transmission < 0.5 {
-                let what = format!("transmission {transmission} < 0.5 rendered as Lambert");
-                self.approximated(element, name, what);
-                return Surface::Lambert {
-                    albedo: mr.base_color,
-                    texture: None,
-                };
-            }
-            if transmission < 1.0 {
-                let what = format!("transmission {transmission} rendered as fully transmissive");
-                self.approximated(element, name, what);
-            }
-            if roughness > 0.0 {
-                let what = format!("roughness {roughness} on glass rendered as smooth glass");
-                self.approximated(element, name, what);
-            }
-            return Surface::Dielectric {
-                ior: mr.ior,
-                tint: mr.base_color,
-                absorption: mr.absorption,
-            };
-        }
-        if metallic >= 0.5 {
-            if metallic < 1.0 {
-                self.approximated(element, name, format!("metallic {metallic} rendered as a full mirror"));
-            }
-            if roughness > 0.0 {
-                let what = format!("roughness {roughness} on metal rendered as a perfect mirror");
-                self.approximated(element, name, what);
-            }
-            return Surface::Mirror { f0: mr.base_color };
-        }
-        if metallic > 0.0 {
-            self.approximated(element, name, format!("metallic {metallic} < 0.5 rendered as Lambert"));
-        }
-        if mr.specular > 0.0 && roughness < 1.0 {
-            self.approximated(element, name, "specular layer ignored (pure Lambert)");
-        }
-        Surface::Lambert {
-            albedo: mr.base_color,
-            texture: mr.base_color_texture,
-        }
+        Ok(Surface::Gltf(Box::new(mr)))
     }
 
     /// The factors and textures of the material's metallic-roughness model.
