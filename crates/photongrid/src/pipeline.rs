@@ -1083,14 +1083,82 @@ pub fn select_cameras<'a>(scene: &'a Scene, keys: &[String]) -> Result<Vec<&'a C
     if keys.is_empty() || keys.iter().any(|k| k == "all") {
         return Ok(scene.cameras.iter().collect());
     }
+    if keys.len() <= 8 {
+        return keys
+            .iter()
+            .map(|k| scene.camera(k).map_err(RenderError::UnknownCamera))
+            .collect();
+    }
+    // Many keys (a jobs file listing thousands of cameras): look them up in maps, not one
+    // scan of the cameras per key; the first camera of a name or index wins, as in
+    // `Scene::camera`.
+    let mut by_name = std::collections::HashMap::new();
+    let mut by_index = std::collections::HashMap::new();
+    for c in &scene.cameras {
+        by_name.entry(c.name.as_str()).or_insert(c);
+        by_index.entry(c.index).or_insert(c);
+    }
     keys.iter()
-        .map(|k| scene.camera(k).map_err(RenderError::UnknownCamera))
+        .map(|k| {
+            by_name
+                .get(k.as_str())
+                .or_else(|| k.parse::<usize>().ok().and_then(|i| by_index.get(&i)))
+                .copied()
+                .ok_or_else(|| RenderError::UnknownCamera(scene.camera(k).err().unwrap_or_default()))
+        })
         .collect()
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn many_camera_keys_select_as_few_do() {
+        let camera = |name: &str, index: usize| Camera {
+            name: name.into(),
+            index,
+            to_world: glam::Mat4::IDENTITY,
+            projection: crate::scene::Projection::Perspective {
+                yfov: 1.0,
+                aspect: None,
+            },
+        };
+        // Names that repeat, a name that is another camera's index, two nodes of one camera.
+        let mut cameras: Vec<Camera> = (0..30).map(|i| camera(&format!("c{}", i % 25), i)).collect();
+        cameras.push(camera("3", 40));
+        cameras.push(camera("twin", 7));
+        let scene = Scene {
+            source: PathBuf::from("s.glb"),
+            triangles: vec![],
+            materials: vec![],
+            textures: vec![],
+            tangents: vec![],
+            glossy_roughness: 0.0,
+            lights: vec![],
+            cameras,
+            bounds: crate::scene::Bounds::empty(),
+            report: Default::default(),
+        };
+        let keys: Vec<String> = ["c3", "c2", "3", "7", "twin", "29", "c0", "c24", "0", "40", "c1"]
+            .iter()
+            .map(|k| k.to_string())
+            .collect();
+        let picked: Vec<(String, usize)> = select_cameras(&scene, &keys)
+            .unwrap()
+            .iter()
+            .map(|c| (c.name.clone(), c.index))
+            .collect();
+        let one_by_one: Vec<(String, usize)> = keys
+            .iter()
+            .map(|k| scene.camera(k).map(|c| (c.name.clone(), c.index)).unwrap())
+            .collect();
+        assert_eq!(picked, one_by_one);
+        let mut bad = keys.clone();
+        bad.push("nope".into());
+        let e = select_cameras(&scene, &bad).unwrap_err().to_string();
+        assert!(e.contains("nope") && e.contains("c24"), "{e}");
+    }
 
     #[test]
     fn summary_lists_the_phases_that_ran_in_order() {
