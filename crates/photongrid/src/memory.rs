@@ -105,8 +105,13 @@ pub fn memory_limit(settings: &Settings) -> (u64, String) {
     }
 }
 
-/// `MemTotal` of `/proc/meminfo`, in bytes.
+/// `MemTotal` of `/proc/meminfo`, in bytes, read once (a batch checks every unit).
 fn physical_ram() -> Option<u64> {
+    static RAM: std::sync::OnceLock<Option<u64>> = std::sync::OnceLock::new();
+    *RAM.get_or_init(read_physical_ram)
+}
+
+fn read_physical_ram() -> Option<u64> {
     let text = std::fs::read_to_string("/proc/meminfo").ok()?;
     let line = text.lines().find(|l| l.starts_with("MemTotal:"))?;
     let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
@@ -155,36 +160,84 @@ fn mean_albedo(scene: &Scene) -> f64 {
     }
 }
 
+/// What the estimate needs of a scene, so that a front end which drops the scene once its
+/// cameras are known (batch expansion) can still check each unit before rendering it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SceneFootprint {
+    /// Triangles (the scene's copy and the BVH).
+    pub triangles: u64,
+    /// Texels of all textures.
+    pub texels: u64,
+    /// Whether a material is specular (caustic photons are then traced).
+    pub specular: bool,
+    /// Mean diffuse albedo, weighted by area ([`mean_albedo`]).
+    pub mean_albedo: f64,
+}
+
+impl SceneFootprint {
+    /// The footprint of `scene`.
+    pub fn of(scene: &Scene) -> Self {
+        SceneFootprint {
+            triangles: scene.triangles.len() as u64,
+            texels: scene
+                .textures
+                .iter()
+                .map(|t| (t.width as u64).saturating_mul(t.height as u64))
+                .fold(0u64, u64::saturating_add),
+            specular: scene.has_specular(),
+            mean_albedo: mean_albedo(scene),
+        }
+    }
+}
+
 /// Estimate the memory of rendering `cameras` of `scene` with `settings` in the current
 /// thread pool (its size sets the per-thread part). Items are sorted largest first.
 pub fn estimate_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) -> MemoryEstimate {
-    let (limit, limit_origin) = memory_limit(settings);
-    let mut items = Vec::new();
-    let mut add = |what: String, bytes: u64, change: &str| {
-        if bytes > 0 {
-            items.push(Item {
-                what,
-                bytes,
-                change: change.to_string(),
-            })
-        }
-    };
+    estimate_footprint(&SceneFootprint::of(scene), cameras, settings)
+}
 
+/// [`estimate_render`] from a scene's [`SceneFootprint`].
+pub fn estimate_footprint(scene: &SceneFootprint, cameras: &[&Camera], settings: &Settings) -> MemoryEstimate {
+    let (limit, limit_origin) = memory_limit(settings);
+    let mut items = Items::default();
     // The scene and its BVH.
-    let texels: u64 = scene
-        .textures
-        .iter()
-        .map(|t| (t.width as u64).saturating_mul(t.height as u64))
-        .sum();
-    let tris = scene.triangles.len() as u64;
-    add(
+    let (tris, texels) = (scene.triangles, scene.texels);
+    items.add(
         format!("the scene and its BVH ({tris} triangles, {texels} texels)"),
         tris.saturating_mul(BYTES_PER_TRIANGLE)
             .saturating_add(texels.saturating_mul(12)),
         "render a smaller scene",
     );
+    image_items(&mut items, cameras, settings);
+    photon_items(&mut items, scene, settings);
+    grid_items(&mut items, settings);
+    let mut items = items.0;
+    items.sort_by(|a, b| b.bytes.cmp(&a.bytes));
+    MemoryEstimate {
+        items,
+        limit,
+        limit_origin,
+    }
+}
 
-    // The cameras' images.
+/// The parts of an estimate; empty ones are left out.
+#[derive(Default)]
+struct Items(Vec<Item>);
+
+impl Items {
+    fn add(&mut self, what: String, bytes: u64, change: &str) {
+        if bytes > 0 {
+            self.0.push(Item {
+                what,
+                bytes,
+                change: change.to_string(),
+            })
+        }
+    }
+}
+
+/// The cameras' images, the pass being rendered and written, the sample strata.
+fn image_items(items: &mut Items, cameras: &[&Camera], settings: &Settings) {
     let needs = settings.method.needs();
     let spp = settings.spp.max(1) as u64;
     let sizes: Vec<(u64, u32, u32)> = cameras
@@ -206,19 +259,19 @@ pub fn estimate_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) 
     } else {
         "lower the resolution (--width, --height)"
     };
-    add(
+    items.add(
         format!("images of {several}: {BYTES_PER_PIXEL} bytes a pixel across passes"),
         pixels.saturating_mul(BYTES_PER_PIXEL),
         film_change,
     );
     if needs.accumulation == Accumulation::PerSample {
-        add(
+        items.add(
             format!("SPPM state of every camera sample ({several} × --spp {spp} × {SPPM_BYTES_PER_SAMPLE} bytes)"),
             pixels.saturating_mul(spp).saturating_mul(SPPM_BYTES_PER_SAMPLE),
             "lower --spp (SPPM keeps each sample's radius and flux across passes; add passes with --passes instead) or use another --method",
         );
     }
-    add(
+    items.add(
         format!(
             "one camera's pass and output while it renders and is written ({}×{})",
             largest.1, largest.2
@@ -227,19 +280,21 @@ pub fn estimate_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) 
         "lower the resolution (--width, --height)",
     );
     let threads = rayon::current_num_threads().max(1) as u64;
-    add(
+    items.add(
         format!("camera-sample strata (--spp {spp} × {threads} threads × {STRATA_BYTES_PER_SAMPLE} bytes)"),
         spp.saturating_mul(threads).saturating_mul(STRATA_BYTES_PER_SAMPLE),
         "lower --spp (add passes with --passes instead)",
     );
+}
 
-    // One pass's photons.
-    let caustic = if scene.has_specular() && settings.photons > 0 {
+/// One pass's photons.
+fn photon_items(items: &mut Items, scene: &SceneFootprint, settings: &Settings) {
+    let caustic = if scene.specular && settings.photons > 0 {
         settings.caustic_photons as u64
     } else {
         0
     };
-    let rho = mean_albedo(scene);
+    let rho = scene.mean_albedo;
     let depth = settings.photon_hits().max(1) as i32;
     let per_path = if rho < 1.0 {
         (1.0 - rho.powi(depth)) / (1.0 - rho)
@@ -249,7 +304,7 @@ pub fn estimate_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) 
     let gather = settings.effective_gather() > 0;
     let stored = (settings.photons as f64 * per_path + caustic as f64).min(u64::MAX as f64 / 1024.0) as u64;
     let per_photon = BYTES_PER_PHOTON + if gather { GATHER_BYTES_PER_PHOTON } else { 0 };
-    add(
+    items.add(
         format!(
             "one pass's photons (about {stored} stored: {} paths × {per_path:.1} bounces at mean albedo {rho:.2}{}, {per_photon} bytes each)",
             settings.photons,
@@ -262,11 +317,14 @@ pub fn estimate_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) 
         stored.saturating_mul(per_photon),
         "lower --photons (and --caustic-photons); add passes with --passes instead",
     );
+}
 
-    // Grids.
+/// The grids the estimate needs.
+fn grid_items(items: &mut Items, settings: &Settings) {
+    let needs = settings.method.needs();
     if needs.grids && settings.grid != crate::settings::GridMode::None {
         let cells = (settings.grid_res as u64).saturating_pow(2);
-        add(
+        items.add(
             format!(
                 "plane grids (at least one plane of --grid-res {}² cells)",
                 settings.grid_res
@@ -276,31 +334,30 @@ pub fn estimate_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) 
         );
     }
     if needs.multiscale {
-        add(
+        items.add(
             format!("multiscale grids (--grid-cells {})", settings.grid_cells),
             (settings.grid_cells as u64).saturating_mul(BYTES_PER_MULTISCALE_CELL),
             "lower --grid-cells",
         );
-    }
-    items.sort_by(|a, b| b.bytes.cmp(&a.bytes));
-    MemoryEstimate {
-        items,
-        limit,
-        limit_origin,
     }
 }
 
 /// How many of `cameras`, from the first, can render together within the limit (at least 1:
 /// a single camera that does not fit is refused by [`check_render`] with its own message).
 pub fn cameras_that_fit(scene: &Scene, cameras: &[&Camera], settings: &Settings) -> usize {
-    if cameras.len() <= 1 || estimate_render(scene, cameras, settings).fits() {
+    cameras_that_fit_footprint(&SceneFootprint::of(scene), cameras, settings)
+}
+
+/// [`cameras_that_fit`] from a scene's [`SceneFootprint`].
+fn cameras_that_fit_footprint(scene: &SceneFootprint, cameras: &[&Camera], settings: &Settings) -> usize {
+    if cameras.len() <= 1 || estimate_footprint(scene, cameras, settings).fits() {
         return cameras.len();
     }
     // The estimate grows with the cameras: bisect.
     let (mut lo, mut hi) = (1usize, cameras.len());
     while lo + 1 < hi {
         let mid = lo + (hi - lo) / 2;
-        if estimate_render(scene, &cameras[..mid], settings).fits() {
+        if estimate_footprint(scene, &cameras[..mid], settings).fits() {
             lo = mid;
         } else {
             hi = mid;
@@ -311,7 +368,16 @@ pub fn cameras_that_fit(scene: &Scene, cameras: &[&Camera], settings: &Settings)
 
 /// Refuse a render whose estimate is over the limit, before anything large is allocated.
 pub fn check_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) -> Result<MemoryEstimate, MemoryError> {
-    let estimate = estimate_render(scene, cameras, settings);
+    check_footprint(&SceneFootprint::of(scene), cameras, settings)
+}
+
+/// [`check_render`] from a scene's [`SceneFootprint`].
+pub fn check_footprint(
+    scene: &SceneFootprint,
+    cameras: &[&Camera],
+    settings: &Settings,
+) -> Result<MemoryEstimate, MemoryError> {
+    let estimate = estimate_footprint(scene, cameras, settings);
     if estimate.fits() {
         tracing::debug!(
             "memory estimate {} of {} ({})",
@@ -329,8 +395,8 @@ pub fn check_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) -> 
         .collect();
     let mut change = estimate.items[0].change.clone();
     if cameras.len() > 1 {
-        let n = cameras_that_fit(scene, cameras, settings);
-        if estimate_render(scene, &cameras[..n], settings).fits() {
+        let n = cameras_that_fit_footprint(scene, cameras, settings);
+        if estimate_footprint(scene, &cameras[..n], settings).fits() {
             change = format!("{change}; {n} of the {} cameras fit at once", cameras.len());
         }
     }

@@ -121,20 +121,15 @@ impl Material {
         self.emission.max_element() > 0.0
     }
 
-    /// True for mirror, glass and glTF materials with a lobe that light is traced through
-    /// (transmission, or reflection narrower than [`crate::bsdf::GLOSSY_ROUGHNESS`] somewhere):
-    /// surfaces that can redirect light into caustics (the caustic pass aims at them). A rough
-    /// glTF reflection is rendered from photons, so aiming caustic photons at it would only
-    /// repeat the global pass.
+    /// True for mirror, glass and transmissive glTF materials: surfaces that redirect light
+    /// into sharp caustics (the caustic pass aims at them). Light that a glTF reflection lobe
+    /// redirects is blurred by its roughness, and the global pass's photons carry it (aiming a
+    /// caustic pass at rough metal and plastic would cost as much again for little).
     pub fn is_specular(&self) -> bool {
         match &self.surface {
             Surface::Lambert { .. } => false,
             Surface::Mirror { .. } | Surface::Dielectric { .. } => true,
-            Surface::Gltf(m) => {
-                let reflects = m.metallic > 0.0 || m.specular > 0.0;
-                let narrow = m.roughness < crate::bsdf::GLOSSY_ROUGHNESS || m.metallic_roughness_texture.is_some();
-                (reflects && narrow) || m.transmission > 0.0 || m.transmission_texture.is_some()
-            }
+            Surface::Gltf(m) => m.transmission > 0.0 || m.transmission_texture.is_some(),
         }
     }
 
