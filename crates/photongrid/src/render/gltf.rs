@@ -14,7 +14,6 @@ use super::Tracer;
 use crate::accel::Hit;
 use crate::bsdf::{self, GltfPoint, LobeMask};
 use crate::estimate::density::{density_radiance, photon_density};
-use crate::estimate::Query;
 use crate::film::Aov;
 use crate::sampling::Rng;
 use crate::scene::material::MetallicRoughness;
@@ -29,6 +28,21 @@ use glam::Vec3;
 pub(super) struct MisRay {
     /// Solid-angle density of the BSDF sample.
     pdf: f32,
+}
+
+/// What an SPPM camera path does at a glTF surface ([`Tracer::sppm_gltf`]).
+pub(super) enum SppmStep {
+    /// A visible point: direct light there and the weight of its photon estimate.
+    Visible {
+        /// Reflected direct light.
+        direct: Rgb,
+        /// Multiplies the photon flux density (BSDF albedo / π).
+        weight: Rgb,
+    },
+    /// On through a sampled direction with this throughput weight (rough glass).
+    Through(Rgb, Vec3),
+    /// Nothing scatters.
+    Stop,
 }
 
 impl Tracer<'_> {
@@ -65,13 +79,7 @@ impl Tracer<'_> {
             Some(s) => s.weight,
             None => Rgb::ZERO,
         };
-        let query = Query {
-            position: sp.position,
-            facing_normal: sp.facing_normal,
-            geometric_normal: sp.geometric_normal,
-            triangle: sp.triangle,
-        };
-        let e = self.photons.estimator.gather(&query, &mut self.knn);
+        let e = self.photons.estimator.gather(&super::query_at(sp), &mut self.knn);
         let mut l = density_radiance(albedo, e.flux, e.r2);
         if e.needs_gathering && self.settings.gather > 0 && albedo.max_element() > 0.0 {
             l += albedo * self.final_gather(sp, rng);
@@ -87,12 +95,28 @@ impl Tracer<'_> {
     /// Direct light by shadow rays: the stored lobes with weight one (with shadow-ray direct
     /// lighting; from photons otherwise), the traced lobes weighted against BSDF sampling.
     fn gltf_direct(&self, g: &GltfPoint, sp: &SurfacePoint, rng: &mut Rng) -> Rgb {
-        let stored = if self.settings.direct == DirectLighting::ShadowRays {
-            g.stored
+        self.light_sampled(g, sp, (self.plain_direct(g.stored), g.traced), rng)
+    }
+
+    /// `mask` if direct light comes from shadow rays, else no lobe (photons carry it).
+    fn plain_direct(&self, mask: LobeMask) -> LobeMask {
+        if self.settings.direct == DirectLighting::ShadowRays {
+            mask
         } else {
             LobeMask::NONE
-        };
-        if stored.is_empty() && g.traced.is_empty() {
+        }
+    }
+
+    /// Light sampling of the lobes `stored` with weight one and of `traced` weighted against
+    /// BSDF sampling of them.
+    fn light_sampled(
+        &self,
+        g: &GltfPoint,
+        sp: &SurfacePoint,
+        (stored, traced): (LobeMask, LobeMask),
+        rng: &mut Rng,
+    ) -> Rgb {
+        if stored.is_empty() && traced.is_empty() {
             return Rgb::ZERO;
         }
         let mut l = Rgb::ZERO;
@@ -108,8 +132,8 @@ impl Tracer<'_> {
                     continue;
                 };
                 let mut f = g.f(inc.wi, stored);
-                if !g.traced.is_empty() {
-                    let (ft, pt) = g.eval(inc.wi, g.traced);
+                if !traced.is_empty() {
+                    let (ft, pt) = g.eval(inc.wi, traced);
                     let w = if inc.pdf > 0.0 {
                         bsdf::mis_weight(n as f32, inc.pdf, 1.0, pt)
                     } else {
@@ -130,6 +154,38 @@ impl Tracer<'_> {
             l += sum / n as f32;
         }
         l
+    }
+
+    /// SPPM at a glTF surface: a transmissive one, or one that stores no photons (narrow
+    /// reflection only), is followed like glass (one lobe sampled; delta lights are not seen in
+    /// it); any other is a visible point for all its lobes — direct light through the exact BSDF,
+    /// the photon estimate weighted by the albedo (one sample) as if indirect light arrived
+    /// evenly (SPPM keeps one visible point per camera sample, so glossy reflections of
+    /// indirect light are not traced there).
+    pub(super) fn sppm_gltf(
+        &self,
+        m: &MetallicRoughness,
+        sp: &SurfacePoint,
+        (d, distance): (Vec3, f32),
+        rng: &mut Rng,
+    ) -> SppmStep {
+        let g = GltfPoint::at(self.scene, m, sp, d);
+        let a = bsdf::absorption(&self.scene.materials[sp.material as usize].surface, sp, distance);
+        if g.lobes.present().transmission || g.stored.is_empty() {
+            return match g.sample_split(rng) {
+                Some(s) => SppmStep::Through(a * s.weight, s.direction),
+                None => SppmStep::Stop,
+            };
+        }
+        let albedo = match g.sample(LobeMask::ALL, rng.uniform(), rng.uniform2()) {
+            Some(s) => s.weight,
+            None => Rgb::ZERO,
+        };
+        let direct = self.light_sampled(&g, sp, (self.plain_direct(LobeMask::ALL), LobeMask::NONE), rng);
+        SppmStep::Visible {
+            direct: a * direct,
+            weight: a * bsdf::lambert(albedo),
+        }
     }
 
     /// The weight of emission found at `sp` (hit by a ray along `d`) by a ray sampled from a

@@ -141,6 +141,16 @@ pub fn render_until(
     (!late.into_inner()).then_some(film)
 }
 
+/// The photon-estimate query at a surface point.
+fn query_at(sp: &SurfacePoint) -> Query {
+    Query {
+        position: sp.position,
+        facing_normal: sp.facing_normal,
+        geometric_normal: sp.geometric_normal,
+        triangle: sp.triangle,
+    }
+}
+
 /// The N-rooks strata of a pixel's `spp` samples.
 fn pixel_strata(settings: &RenderSettings, pixel: u64) -> sampling::NRooks {
     sampling::n_rooks(

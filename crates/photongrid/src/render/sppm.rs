@@ -11,6 +11,7 @@
 //! A sample's radius starts at the kNN radius (k = `neighbours`) of the first pass's map
 //! where it first meets a diffuse surface.
 
+use super::gltf::SppmStep;
 use super::{camera_ray, pixel_strata, PhotonData, RenderSettings, Tracer};
 use crate::accel::Accel;
 use crate::bsdf;
@@ -175,12 +176,7 @@ impl Tracer<'_> {
                 if self.settings.direct == DirectLighting::ShadowRays {
                     l += beta * f * self.direct_irradiance(&sp, rng);
                 }
-                let query = Query {
-                    position: sp.position,
-                    facing_normal: sp.facing_normal,
-                    geometric_normal: sp.geometric_normal,
-                    triangle: sp.triangle,
-                };
+                let query = super::query_at(&sp);
                 return (
                     l,
                     Some(VisiblePoint {
@@ -188,6 +184,22 @@ impl Tracer<'_> {
                         weight: beta * f,
                     }),
                 );
+            }
+            if let Surface::Gltf(m) = &material.surface {
+                match self.sppm_gltf(m, &sp, (d, hit.t), rng) {
+                    SppmStep::Visible { direct, weight } => {
+                        let vp = VisiblePoint {
+                            query: super::query_at(&sp),
+                            weight: beta * weight,
+                        };
+                        return (l + beta * direct, Some(vp));
+                    }
+                    SppmStep::Through(w, dir) if depth < self.settings.max_specular_depth => {
+                        (beta, o, d) = (beta * w, sp.offset(dir), dir);
+                        continue;
+                    }
+                    _ => break,
+                }
             }
             if depth == self.settings.max_specular_depth {
                 break; // as the camera pass: no mirror/glass bounce beyond the limit
