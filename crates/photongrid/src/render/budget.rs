@@ -343,11 +343,12 @@ mod tests {
             // leaves: samples are whole).
             assert!(p.size.spp <= last.spp, "{p:?} after {last:?}");
             // Samples are given up only when the photons at their floor do not leave room for
-            // one more.
+            // one more (with every gather ray: gather rays go after samples).
             if p.size.spp < requested().spp {
                 let floor = PHOTON_FLOOR_SHARE * requested().paths() as f64 / requested().paths() as f64;
                 let one_more = PassSize {
                     spp: p.size.spp + 1,
+                    gather: requested().gather,
                     ..p.size
                 };
                 let at_floor = PassSize {
