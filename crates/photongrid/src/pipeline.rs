@@ -397,9 +397,7 @@ pub fn render(
         Some(t) => {
             let left = deadline_seconds(t) - start.elapsed().as_secs_f64();
             let plan = plan_passes(scene, &accel, cameras, settings, left, progress, &mut report.seconds);
-            let pass_settings = plan.plan.size.apply(settings);
-            report.budget = Some(plan);
-            pass_settings
+            report.budget.insert(plan).plan.size.apply(settings)
         }
         None => settings.clone(),
     };
@@ -435,11 +433,8 @@ pub fn render(
         report.passes.seconds.push(last);
         report.passes.count += 1;
         if let (0, Some(b)) = (done, report.budget.as_mut()) {
-            let s = &report.seconds;
-            let photons = s.photons + s.grids + s.irradiance + s.build
-                - (before.photons + before.grids + before.irradiance + before.build);
             let left = budget.time.unwrap_or(0.0) - start.elapsed().as_secs_f64();
-            if let Some(next) = run.replan(b, left, photons, s.render - before.render) {
+            if let Some(next) = run.replan(b, left, &before, &report.seconds) {
                 last = next;
             }
         }
@@ -566,21 +561,17 @@ impl<'a> PassLoop<'a> {
     }
 
     /// After the first pass of a time budget: size the next passes for the `left` seconds with
-    /// the costs the first pass measured (`photon_seconds`, `camera_seconds`); their weight in
+    /// the costs the first pass measured (phase times `before` and `after` it); their weight in
     /// the averages is their predicted share of the first. Returns the next pass's predicted
     /// seconds. Not for SPPM, whose passes must all have the same samples.
-    fn replan(
-        &mut self,
-        budget: &mut BudgetReport,
-        left: f64,
-        photon_seconds: f64,
-        camera_seconds: f64,
-    ) -> Option<f64> {
+    fn replan(&mut self, budget: &mut BudgetReport, left: f64, before: &PhaseTimes, after: &PhaseTimes) -> Option<f64> {
         if self.settings.method.needs().accumulation != Accumulation::Average {
             return None;
         }
+        let photon_side = |s: &PhaseTimes| s.photons + s.grids + s.irradiance + s.build;
+        let photon_seconds = photon_side(after) - photon_side(before);
         let first = budget.plan.size;
-        let costs = corrected(&budget.costs, &first, photon_seconds, camera_seconds);
+        let costs = corrected(&budget.costs, &first, photon_seconds, after.render - before.render);
         let plan = plan(&costs, left, budget.requested, REPLANNED_PASSES);
         self.weight = (costs.pass_seconds(&plan.size) / costs.pass_seconds(&first)) as f32;
         self.settings = plan.size.apply(&self.settings);
@@ -684,8 +675,42 @@ pub fn plan_passes(
     progress: &Progress<'_>,
     times: &mut PhaseTimes,
 ) -> BudgetReport {
-    let t0 = Instant::now();
     let requested = PassSize::of(settings, caustic_photons(scene, settings));
+    let costs = probe_costs(scene, accel, cameras, settings, requested, progress);
+    times.probe += costs.probe_seconds;
+    let plan = plan(&costs, left - costs.probe_seconds, requested, PLANNED_PASSES);
+    tracing::info!(reason = plan.reason.as_str(), "pass size");
+    let time = settings.time.unwrap_or(0.0);
+    if plan.over_budget {
+        tracing::warn!(
+            "a time budget of {time:.1} s is too short for this scene: one pass of the smallest size is predicted to \
+             take {:.1} s, so the render will end late; give --time {:.0} or more, or fewer pixels (--width/--height)",
+            plan.predicted_pass_seconds,
+            (time - left + costs.probe_seconds + plan.predicted_pass_seconds).ceil()
+        );
+    }
+    BudgetReport {
+        time,
+        deadline: deadline_seconds(time),
+        requested,
+        costs,
+        plan,
+        replan: None,
+        fill: None,
+    }
+}
+
+/// The probe of [`plan_passes`]: a pass of a small share of the `requested` photons, then each
+/// camera at a reduced resolution without and with final gathering, each timed.
+fn probe_costs(
+    scene: &Scene,
+    accel: &Accel,
+    cameras: &[&Camera],
+    settings: &Settings,
+    requested: PassSize,
+    progress: &Progress<'_>,
+) -> Costs {
+    let t0 = Instant::now();
     let small = |n: usize| {
         if n == 0 {
             0
@@ -700,8 +725,7 @@ pub fn plan_passes(
         gather: requested.gather,
     };
     let probe_settings = probe.apply(settings);
-    let mut scratch = PhaseTimes::default();
-    let mut grids = GridState::default();
+    let (mut scratch, mut grids) = (PhaseTimes::default(), GridState::default());
     let photons = trace_pass(
         scene,
         accel,
@@ -711,7 +735,6 @@ pub fn plan_passes(
         progress,
         &mut scratch,
     );
-    let photon_seconds = scratch.photons + scratch.irradiance + scratch.build;
     let input = PhotonData {
         estimator: Estimator::for_pass(&probe_settings, 0, &photons.map, grids.view()),
         irradiance: photons.irradiance.as_ref(),
@@ -725,51 +748,24 @@ pub fn plan_passes(
         samples += rs.width as u64 * rs.height as u64;
         for gather in [0, probe.gather] {
             let t = Instant::now();
-            let film = crate::render::render(
-                scene,
-                accel,
-                input,
-                camera,
-                &RenderSettings { gather, ..rs.clone() },
-                &|_| {},
-            );
-            drop(film);
+            let rs = RenderSettings { gather, ..rs.clone() };
+            drop(crate::render::render(scene, accel, input, camera, &rs, &|_| {}));
             *(if gather == 0 { &mut plain } else { &mut gathered }) += t.elapsed().as_secs_f64();
         }
     }
     let samples = samples.max(1) as f64;
-    let costs = Costs {
+    let gather_rays = samples * probe.gather.max(1) as f64;
+    Costs {
         per_pass: scratch.grids,
-        per_path: photon_seconds / probe.paths().max(1) as f64,
+        per_path: (scratch.photons + scratch.irradiance + scratch.build) / probe.paths().max(1) as f64,
         per_sample: plain / samples,
         per_gather_ray: if probe.gather > 0 {
-            (gathered - plain).max(0.0) / (samples * probe.gather as f64)
+            (gathered - plain).max(0.0) / gather_rays
         } else {
             0.0
         },
         pixels,
         probe_seconds: t0.elapsed().as_secs_f64(),
-    };
-    times.probe += costs.probe_seconds;
-    let plan = plan(&costs, left - costs.probe_seconds, requested, PLANNED_PASSES);
-    tracing::info!(reason = plan.reason.as_str(), "pass size");
-    if plan.over_budget {
-        tracing::warn!(
-            "a time budget of {:.1} s is too short for this scene: one pass of the smallest size is predicted to take \
-             {:.1} s, so the render will end late; give --time {:.0} or more, or fewer pixels (--width/--height)",
-            settings.time.unwrap_or(0.0),
-            plan.predicted_pass_seconds,
-            (settings.time.unwrap_or(0.0) - left + costs.probe_seconds + plan.predicted_pass_seconds).ceil()
-        );
-    }
-    BudgetReport {
-        time: settings.time.unwrap_or(0.0),
-        deadline: settings.time.map(deadline_seconds).unwrap_or(0.0),
-        requested,
-        costs,
-        plan,
-        replan: None,
-        fill: None,
     }
 }
 
