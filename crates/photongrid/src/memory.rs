@@ -159,38 +159,61 @@ fn mean_albedo(scene: &Scene) -> f64 {
 /// thread pool (its size sets the per-thread part). Items are sorted largest first.
 pub fn estimate_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) -> MemoryEstimate {
     let (limit, limit_origin) = memory_limit(settings);
-    let mut items = Vec::new();
-    let mut add = |what: String, bytes: u64, change: &str| {
+    let mut items = Items::default();
+    add_scene(&mut items, scene);
+    add_cameras(&mut items, cameras, settings);
+    add_photons(&mut items, scene, settings);
+    add_grids(&mut items, settings);
+    let mut items = items.0;
+    items.sort_by(|a, b| b.bytes.cmp(&a.bytes));
+    MemoryEstimate {
+        items,
+        limit,
+        limit_origin,
+    }
+}
+
+/// The estimate's items in the order they are added; one of no bytes is left out.
+#[derive(Default)]
+struct Items(Vec<Item>);
+
+impl Items {
+    fn add(&mut self, what: String, bytes: u64, change: &str) {
         if bytes > 0 {
-            items.push(Item {
+            self.0.push(Item {
                 what,
                 bytes,
                 change: change.to_string(),
             })
         }
-    };
+    }
+}
 
-    // The scene and its BVH.
+/// The scene and its BVH.
+fn add_scene(items: &mut Items, scene: &Scene) {
     let texels: u64 = scene
         .textures
         .iter()
         .map(|t| (t.width as u64).saturating_mul(t.height as u64))
         .sum();
     let tris = scene.triangles.len() as u64;
-    add(
+    items.add(
         format!("the scene and its BVH ({tris} triangles, {texels} texels)"),
         tris.saturating_mul(BYTES_PER_TRIANGLE)
             .saturating_add(texels.saturating_mul(12)),
         "render a smaller scene",
     );
+}
 
-    // The cameras' images.
+/// The cameras' images across passes, SPPM's per-sample state, one camera's pass while it
+/// renders, and the worker threads' strata.
+fn add_cameras(items: &mut Items, cameras: &[&Camera], settings: &Settings) {
     let needs = settings.method.needs();
     let spp = settings.spp.max(1) as u64;
     let sizes: Vec<(u64, u32, u32)> = cameras
         .iter()
         .map(|c| {
-            let (w, h) = crate::pipeline::resolution(c, settings);
+            let (w, h) = c.resolution(settings.width, settings.height);
             ((w as u64) * (h as u64), w, h)
         })
         .collect();
@@ -206,19 +229,19 @@ pub fn estimate_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) 
     } else {
         "lower the resolution (--width, --height)"
     };
-    add(
+    items.add(
         format!("images of {several}: {BYTES_PER_PIXEL} bytes a pixel across passes"),
         pixels.saturating_mul(BYTES_PER_PIXEL),
         film_change,
     );
     if needs.accumulation == Accumulation::PerSample {
-        add(
+        items.add(
             format!("SPPM state of every camera sample ({several} × --spp {spp} × {SPPM_BYTES_PER_SAMPLE} bytes)"),
             pixels.saturating_mul(spp).saturating_mul(SPPM_BYTES_PER_SAMPLE),
             "lower --spp (SPPM keeps each sample's radius and flux across passes; add passes with --passes instead) or use another --method",
         );
     }
-    add(
+    items.add(
         format!(
             "one camera's pass and output while it renders and is written ({}×{})",
             largest.1, largest.2
@@ -227,13 +250,15 @@ pub fn estimate_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) 
         "lower the resolution (--width, --height)",
     );
     let threads = rayon::current_num_threads().max(1) as u64;
-    add(
+    items.add(
         format!("camera-sample strata (--spp {spp} × {threads} threads × {STRATA_BYTES_PER_SAMPLE} bytes)"),
         spp.saturating_mul(threads).saturating_mul(STRATA_BYTES_PER_SAMPLE),
         "lower --spp (add passes with --passes instead)",
     );
+}
 
-    // One pass's photons.
+/// One pass's photons, from the stored photons per path at the scene's mean albedo.
+fn add_photons(items: &mut Items, scene: &Scene, settings: &Settings) {
     let caustic = if scene.has_specular() && settings.photons > 0 {
         settings.caustic_photons as u64
     } else {
@@ -249,7 +274,7 @@ pub fn estimate_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) 
     let gather = settings.effective_gather() > 0;
     let stored = (settings.photons as f64 * per_path + caustic as f64).min(u64::MAX as f64 / 1024.0) as u64;
     let per_photon = BYTES_PER_PHOTON + if gather { GATHER_BYTES_PER_PHOTON } else { 0 };
-    add(
+    items.add(
         format!(
             "one pass's photons (about {stored} stored: {} paths × {per_path:.1} bounces at mean albedo {rho:.2}{}, {per_photon} bytes each)",
             settings.photons,
@@ -262,11 +287,14 @@ pub fn estimate_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) 
         stored.saturating_mul(per_photon),
         "lower --photons (and --caustic-photons); add passes with --passes instead",
     );
+}
 
-    // Grids.
+/// The grids the method needs.
+fn add_grids(items: &mut Items, settings: &Settings) {
+    let needs = settings.method.needs();
     if needs.grids && settings.grid != crate::settings::GridMode::None {
         let cells = (settings.grid_res as u64).saturating_pow(2);
-        add(
+        items.add(
             format!(
                 "plane grids (at least one plane of --grid-res {}² cells)",
                 settings.grid_res
@@ -276,17 +304,11 @@ pub fn estimate_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) 
         );
     }
     if needs.multiscale {
-        add(
+        items.add(
             format!("multiscale grids (--grid-cells {})", settings.grid_cells),
             (settings.grid_cells as u64).saturating_mul(BYTES_PER_MULTISCALE_CELL),
             "lower --grid-cells",
         );
-    }
-    items.sort_by(|a, b| b.bytes.cmp(&a.bytes));
-    MemoryEstimate {
-        items,
-        limit,
-        limit_origin,
     }
 }
 
@@ -347,39 +369,12 @@ pub fn check_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) -> 
     })
 }
 
-/// Bytes from `8G`, `512M`, `1.5GiB`, `300k`, `2e9` or `4096` (units of 1024; `B` and `iB`
-/// optional).
-pub fn parse_bytes(v: &str) -> Result<u64, String> {
-    let t = v.trim().replace('_', "");
-    let lower = t.to_ascii_lowercase();
-    let s = lower.trim_end_matches('b').trim_end_matches('i');
-    let (num, unit) = match s.char_indices().last() {
-        Some((i, 'k')) => (&s[..i], 1u64 << 10),
-        Some((i, 'm')) => (&s[..i], 1 << 20),
-        Some((i, 'g')) => (&s[..i], 1 << 30),
-        Some((i, 't')) => (&s[..i], 1 << 40),
-        _ => (s, 1),
-    };
-    let bad = || format!("`{v}` is not a size: use e.g. 8G, 512M, 16GiB or a number of bytes");
-    let x = num.trim().parse::<f64>().map_err(|_| bad())? * unit as f64;
-    if !(x >= 1.0 && x.is_finite() && x < u64::MAX as f64) {
-        return Err(bad());
-    }
-    Ok(x as u64)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
-    fn sizes_parse() {
-        assert_eq!(parse_bytes("8G"), Ok(8 << 30));
-        assert_eq!(parse_bytes("512MiB"), Ok(512 << 20));
-        assert_eq!(parse_bytes("1.5g"), Ok(3 << 29));
-        assert_eq!(parse_bytes("4096"), Ok(4096));
-        assert_eq!(parse_bytes("2k"), Ok(2048));
-        assert!(parse_bytes("x").is_err() && parse_bytes("-1G").is_err() && parse_bytes("0").is_err());
+    fn sizes_print() {
         assert_eq!(human(3 << 29), "1.5 GiB");
     }
 

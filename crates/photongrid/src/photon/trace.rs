@@ -42,6 +42,19 @@ enum PassKind {
     Caustic,
 }
 
+impl PassKind {
+    /// Whether the pass stores a photon of `kind` at a diffuse hit.
+    fn stores(self, kind: PhotonKind, store_direct: bool) -> bool {
+        match (self, kind) {
+            (PassKind::Caustic, PhotonKind::Caustic) => true,
+            (PassKind::Caustic, _) => false,
+            (PassKind::Global { store_caustic }, PhotonKind::Caustic) => store_caustic,
+            (PassKind::Global { .. }, PhotonKind::Direct) => store_direct,
+            (PassKind::Global { .. }, PhotonKind::Indirect) => true,
+        }
+    }
+}
+
 struct Pass {
     kind: PassKind,
     stream: u64,
@@ -244,14 +257,7 @@ fn trace_path(
                 if albedo.max_element() <= 0.0 {
                     return;
                 }
-                let store = match (pass, kind) {
-                    (PassKind::Caustic, PhotonKind::Caustic) => true,
-                    (PassKind::Caustic, _) => false,
-                    (PassKind::Global { store_caustic }, PhotonKind::Caustic) => store_caustic,
-                    (PassKind::Global { .. }, PhotonKind::Direct) => settings.store_direct,
-                    (PassKind::Global { .. }, PhotonKind::Indirect) => true,
-                };
-                if store {
+                if pass.stores(kind, settings.store_direct) {
                     // Stochastic rounding of the power: the photons share a few exact powers,
                     // which nearest rounding would bias all alike (see `rgbe_encode_dithered`).
                     // One uniform for all channels: each is unbiased, and grey stays grey.
@@ -286,16 +292,10 @@ fn trace_path(
                 let Some(c) = bsdf::adjoint_shading_correction(-dir, s.direction, sp.facing_normal, s.normal) else {
                     return;
                 };
-                // Russian roulette where the weight is below one keeps the power nearly constant.
-                let q = s.weight.max_element().min(1.0);
-                if q < 1.0 {
-                    if rng.uniform() >= q {
-                        return;
-                    }
-                    power *= s.weight / q * c;
-                } else {
-                    power *= s.weight * c;
-                }
+                let Some(w) = specular_roulette(s.weight, rng) else {
+                    return;
+                };
+                power *= w * c;
                 dir = s.direction;
                 origin = sp.offset(dir);
                 if kind == PhotonKind::Direct {
@@ -306,5 +306,20 @@ fn trace_path(
         if power.max_element() <= 0.0 || !power.is_finite() {
             return;
         }
+    }
+}
+
+/// Russian roulette where a specular weight is below one keeps the power nearly constant:
+/// the factor to apply to the power, or None when the path ends. A random number is drawn
+/// only when the weight is below one.
+fn specular_roulette(weight: Rgb, rng: &mut Rng) -> Option<Rgb> {
+    let q = weight.max_element().min(1.0);
+    if q < 1.0 {
+        if rng.uniform() >= q {
+            return None;
+        }
+        Some(weight / q)
+    } else {
+        Some(weight)
     }
 }
