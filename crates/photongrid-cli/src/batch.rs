@@ -14,18 +14,19 @@
 //! and the EXR's length and hash. A unit is skipped only if its sidecar has the same key, the
 //! EXR has the recorded length and hash, and it reads back at the right size.
 
+use photongrid::memory::SceneFootprint;
 use photongrid::output::{self, output_for, AovSelection};
 use photongrid::pipeline::{self, CameraReport, RenderRequest};
 use photongrid::progress::Progress;
 use photongrid::scene::gltf::{load_with, LoadOptions};
-use photongrid::scene::Scene;
+use photongrid::scene::{Camera, Scene};
 use photongrid::settings::Settings;
 use serde::Serialize;
 use serde_json::{json, Value};
-use std::collections::{HashMap, VecDeque};
+use std::collections::{HashMap, HashSet, VecDeque};
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 /// Keys of a job table that are not render settings.
@@ -80,21 +81,35 @@ pub struct Unit {
     pub height: Option<u32>,
     /// Why the unit cannot run (bad job, missing scene, unknown camera...).
     pub error: Option<String>,
-    /// Settings.
+    /// Settings (one copy per job, shared by its units).
     #[serde(skip)]
-    pub settings: Settings,
+    pub settings: Arc<Settings>,
     /// AOV layers.
     #[serde(skip)]
     pub aovs: bool,
-    /// What the output depends on; hashed into the sidecar's key.
+    /// What the output depends on besides the camera and the resolution (the version, the
+    /// scene file's hash, the settings, the AOVs), as compact JSON: kept as text (a tenth of a
+    /// parsed document's size) and shared by the units of every job that has the same.
     #[serde(skip)]
-    pub key_source: Value,
+    pub job_key: Arc<str>,
 }
 
 impl Unit {
+    /// Everything the output depends on: [`Unit::job_key`] with the camera and resolution.
+    pub fn key_source(&self) -> Value {
+        let mut v: Value = serde_json::from_str(&self.job_key).unwrap_or(Value::Null);
+        if let Value::Object(m) = &mut v {
+            m.insert("camera".into(), json!(self.camera));
+            m.insert("camera_index".into(), json!(self.camera_index));
+            m.insert("width".into(), json!(self.width));
+            m.insert("height".into(), json!(self.height));
+        }
+        v
+    }
+
     /// The resume key: a hash of everything the output depends on.
     pub fn key(&self) -> String {
-        format!("{:016x}", fnv1a64(self.key_source.to_string().as_bytes()))
+        format!("{:016x}", fnv1a64(self.key_source().to_string().as_bytes()))
     }
 }
 
@@ -395,9 +410,11 @@ pub fn safe_component(s: &str) -> String {
 }
 
 /// What expansion keeps of a scene: a scene holding only its cameras (the triangles, materials
-/// and textures are dropped as soon as the cameras are known), and the file's hash.
+/// and textures are dropped as soon as the cameras are known), what the memory estimate needs
+/// of the rest, and the file's hash.
 struct Summary {
     cameras: Scene,
+    footprint: SceneFootprint,
     file: Value,
 }
 
@@ -408,132 +425,75 @@ struct Claim {
     what: &'static str,
 }
 
+/// Paths as `output::resolved(path, false)` gives them (links and `..` resolved, the last
+/// component kept as it is), each folder resolved once: resolving walks every component with
+/// system calls, and the thousands of outputs of a jobs file share a few folders.
+#[derive(Default)]
+struct Resolver {
+    dirs: HashMap<PathBuf, PathBuf>,
+}
+
+impl Resolver {
+    fn resolved(&mut self, path: &Path) -> PathBuf {
+        use std::path::Component;
+        match (path.parent(), path.components().next_back()) {
+            (Some(dir), Some(Component::Normal(name))) => self
+                .dirs
+                .entry(dir.to_path_buf())
+                .or_insert_with(|| output::resolved(dir, true))
+                .join(name),
+            _ => output::resolved(path, false),
+        }
+    }
+}
+
+/// The state of [`expand`]: the scenes read so far, the units, and the paths they claim.
+#[derive(Default)]
+struct Expansion {
+    scenes: HashMap<PathBuf, Result<Summary, String>>,
+    units: Vec<Unit>,
+    claims: HashMap<PathBuf, Claim>,
+    resolver: Resolver,
+    /// The distinct [`Unit::job_key`]s.
+    keys: HashSet<Arc<str>>,
+}
+
+/// A unit of a job before it is numbered: its camera, its output and where the output and its
+/// sidecar lead.
+struct Planned<'a> {
+    camera: &'a Camera,
+    output: PathBuf,
+    at: PathBuf,
+    side: PathBuf,
+}
+
+/// What the units of one job share: the settings and the job's part of the resume key.
+struct Shared {
+    settings: Arc<Settings>,
+    key: Arc<str>,
+}
+
 /// Expand jobs into units in a stable order: job order, then camera order. A job that cannot
 /// be expanded (bad table, missing scene, unknown camera, clashing output) becomes one failed
-/// unit carrying its error, so it is reported and counted in exactly one shard.
+/// unit carrying its error, so it is reported and counted in exactly one shard. A unit whose
+/// render cannot fit the memory limit keeps its camera and output but fails with the estimate,
+/// so it is refused before anything renders, in every run.
 ///
 /// Scenes are loaded one at a time and dropped once their cameras are known, so memory stays
 /// that of one scene however many the file names. Outputs and their sidecars are compared by
 /// where they lead (relative or absolute spelling, links and `..` resolved), so two spellings
-/// of one file clash; an output that is one of the scenes fails its unit.
+/// of one file clash; an output that is one of the scenes fails its unit. Every check is a
+/// look-up in a map, so expansion takes time in proportion to the units.
 pub fn expand(jobs: &[Result<Job, JobError>]) -> Vec<Unit> {
-    let mut scenes: HashMap<PathBuf, Result<Summary, String>> = HashMap::new();
-    let mut units: Vec<Unit> = Vec::new();
-    let mut claims: HashMap<PathBuf, Claim> = HashMap::new();
+    let mut x = Expansion::default();
     for job in jobs {
-        let job = match job {
-            Ok(j) => j,
+        match job {
+            Ok(j) => x.job(j),
             Err(e) => {
-                units.push(failed_unit(units.len(), e.index, e.scene.clone(), e.message.clone()));
-                continue;
+                let index = x.units.len();
+                x.units
+                    .push(failed_unit(index, e.index, e.scene.clone(), e.message.clone()));
             }
-        };
-        let fail = |units: &Vec<Unit>, m: String| {
-            failed_unit(
-                units.len(),
-                job.index,
-                Some(job.scene.clone()),
-                format!("job {} ({}): {m}", job.index, job.scene.display()),
-            )
-        };
-        let loaded = scenes
-            .entry(job.scene.clone())
-            .or_insert_with(|| load_for_expansion(&job.scene, job.settings.memory_limit));
-        let (scene, file) = match loaded {
-            Ok(s) => (&s.cameras, &s.file),
-            Err(e) => {
-                units.push(fail(&units, e.clone()));
-                continue;
-            }
-        };
-        let cameras = match pipeline::select_cameras(scene, &job.cameras) {
-            Ok(c) => c,
-            Err(e) => {
-                units.push(fail(&units, e.to_string()));
-                continue;
-            }
-        };
-        let several = cameras.len() > 1;
-        let pattern = job
-            .output
-            .replace("{scene}", &scene_stem(&job.scene))
-            .replace("{job}", &job.index.to_string());
-        let mut mine: Vec<(&photongrid::scene::Camera, PathBuf)> = Vec::new();
-        let mut mine_by: HashMap<PathBuf, usize> = HashMap::new();
-        let mut clash = None;
-        for c in &cameras {
-            let out = output_for(Path::new(&pattern), &c.name, several);
-            let at = output::resolved(&out, false);
-            let side = output::resolved(&sidecar_path(&out), false);
-            if let Some(&i) = mine_by.get(&at) {
-                let other = mine[i].0;
-                clash = Some(if other.index == c.index {
-                    format!("camera {} '{}' is listed twice in `camera`", c.index, c.name)
-                } else {
-                    format!(
-                        "cameras {} '{}' and {} '{}' both write {} (their names make the same file name); put {{camera}} in `output` or select one of them",
-                        other.index,
-                        other.name,
-                        c.index,
-                        c.name,
-                        out.display()
-                    )
-                });
-                break;
-            }
-            if let Some(Claim { unit, job, what }) = claims.get(&at).or_else(|| claims.get(&side)) {
-                clash = Some(format!(
-                    "output {} is also the {what} of unit {unit} (job {job}); use {{camera}} or {{scene}} in `output`",
-                    out.display()
-                ));
-                break;
-            }
-            mine_by.insert(at, mine.len());
-            mine.push((c, out));
-        }
-        if let Some(m) = clash {
-            units.push(fail(&units, m));
-            continue;
-        }
-        for (c, out) in mine {
-            let (w, h) = pipeline::resolution(c, &job.settings);
-            let index = units.len();
-            for (path, what) in [(out.clone(), "output"), (sidecar_path(&out), "sidecar")] {
-                claims.insert(
-                    output::resolved(&path, false),
-                    Claim {
-                        unit: index,
-                        job: job.index,
-                        what,
-                    },
-                );
-            }
-            // The memory limit changes nothing in the image: it is not part of the key.
-            let key_settings = Settings {
-                memory_limit: None,
-                ..job.settings.clone()
-            };
-            units.push(Unit {
-                index,
-                job: job.index,
-                scene: job.scene.clone(),
-                camera: Some(c.name.clone()),
-                camera_index: Some(c.index),
-                output: Some(out),
-                width: Some(w),
-                height: Some(h),
-                error: None,
-                settings: job.settings.clone(),
-                aovs: job.aovs,
-                key_source: json!({
-                    "version": env!("CARGO_PKG_VERSION"),
-                    "scene_file": file,
-                    "camera": c.name, "camera_index": c.index,
-                    "width": w, "height": h,
-                    "settings": key_settings,
-                    "aovs": job.aovs,
-                }),
-            });
         }
     }
     let scene_paths: Vec<(String, PathBuf)> = jobs
@@ -541,29 +501,184 @@ pub fn expand(jobs: &[Result<Job, JobError>]) -> Vec<Unit> {
         .filter_map(|j| j.as_ref().ok())
         .map(|j| (format!("the scene of job {}", j.index), j.scene.clone()))
         .collect();
-    protect(&mut units, &scene_paths);
-    units
+    protect_with(&mut x.units, &scene_paths, &mut x.resolver);
+    x.units
+}
+
+impl Expansion {
+    /// Add `job`'s units, or one failed unit saying why it has none.
+    fn job(&mut self, job: &Job) {
+        if let Err(m) = self.try_job(job) {
+            let index = self.units.len();
+            let message = format!("job {} ({}): {m}", job.index, job.scene.display());
+            self.units
+                .push(failed_unit(index, job.index, Some(job.scene.clone()), message));
+        }
+    }
+
+    fn try_job(&mut self, job: &Job) -> Result<(), String> {
+        let Expansion {
+            scenes,
+            units,
+            claims,
+            resolver,
+            keys,
+        } = self;
+        let summary = scenes
+            .entry(job.scene.clone())
+            .or_insert_with(|| load_for_expansion(&job.scene, job.settings.memory_limit))
+            .as_ref()
+            .map_err(|e| e.clone())?;
+        let cameras = pipeline::select_cameras(&summary.cameras, &job.cameras).map_err(|e| e.to_string())?;
+        let planned = plan_outputs(job, &cameras, claims, resolver)?;
+        // The memory limit changes nothing in the image: it is not part of the key.
+        let key_settings = Settings {
+            memory_limit: None,
+            ..job.settings.clone()
+        };
+        let key = json!({
+            "version": env!("CARGO_PKG_VERSION"),
+            "scene_file": summary.file,
+            "settings": key_settings,
+            "aovs": job.aovs,
+        })
+        .to_string();
+        let key = match keys.get(key.as_str()) {
+            Some(k) => k.clone(),
+            None => {
+                let k: Arc<str> = key.into();
+                keys.insert(k.clone());
+                k
+            }
+        };
+        let shared = Shared {
+            settings: Arc::new(job.settings.clone()),
+            key,
+        };
+        for p in planned {
+            let index = units.len();
+            for (path, what) in [(&p.at, "output"), (&p.side, "sidecar")] {
+                let claim = Claim {
+                    unit: index,
+                    job: job.index,
+                    what,
+                };
+                claims.insert(path.clone(), claim);
+            }
+            units.push(unit_of(index, job, p, &shared, &summary.footprint));
+        }
+        Ok(())
+    }
+}
+
+/// Each camera's output under `job`'s pattern; an error when two of the cameras would write
+/// one file, or one would write where an earlier unit's output or sidecar is.
+fn plan_outputs<'a>(
+    job: &Job,
+    cameras: &[&'a Camera],
+    claims: &HashMap<PathBuf, Claim>,
+    resolver: &mut Resolver,
+) -> Result<Vec<Planned<'a>>, String> {
+    let several = cameras.len() > 1;
+    let pattern = job
+        .output
+        .replace("{scene}", &scene_stem(&job.scene))
+        .replace("{job}", &job.index.to_string());
+    let mut planned: Vec<Planned> = Vec::with_capacity(cameras.len());
+    let mut mine: HashMap<PathBuf, usize> = HashMap::with_capacity(cameras.len());
+    for &c in cameras {
+        let output = output_for(Path::new(&pattern), &c.name, several);
+        let at = resolver.resolved(&output);
+        let side = resolver.resolved(&sidecar_path(&output));
+        if let Some(&i) = mine.get(&at) {
+            let other = planned[i].camera;
+            return Err(if other.index == c.index && other.name == c.name {
+                format!("camera {} '{}' is listed twice in `camera`", c.index, c.name)
+            } else {
+                format!(
+                    "cameras {} '{}' and {} '{}' both write {} (their names make the same file name); put {{camera}} in `output` or select one of them",
+                    other.index,
+                    other.name,
+                    c.index,
+                    c.name,
+                    output.display()
+                )
+            });
+        }
+        if let Some(Claim { unit, job, what }) = claims.get(&at).or_else(|| claims.get(&side)) {
+            return Err(format!(
+                "output {} is also the {what} of unit {unit} (job {job}); use {{camera}} or {{scene}} in `output`",
+                output.display()
+            ));
+        }
+        mine.insert(at.clone(), planned.len());
+        planned.push(Planned {
+            camera: c,
+            output,
+            at,
+            side,
+        });
+    }
+    Ok(planned)
+}
+
+/// The unit `index` of `job`; failed with the estimate and what to change when its render
+/// cannot fit the memory limit.
+fn unit_of(index: usize, job: &Job, p: Planned, shared: &Shared, footprint: &SceneFootprint) -> Unit {
+    let c = p.camera;
+    let (w, h) = pipeline::resolution(c, &job.settings);
+    let error = photongrid::memory::check_footprint(footprint, &[c], &job.settings)
+        .err()
+        .map(|e| {
+            format!(
+                "job {} ({}), camera {} '{}': refused before rendering: {e} (in a jobs file, options are keys of the job or of [defaults], without `--`: `width = 640`, `spp = 4`, `memory_limit = \"8G\"`)",
+                job.index,
+                job.scene.display(),
+                c.index,
+                c.name
+            )
+        });
+    Unit {
+        index,
+        job: job.index,
+        scene: job.scene.clone(),
+        camera: Some(c.name.clone()),
+        camera_index: Some(c.index),
+        output: Some(p.output),
+        width: Some(w),
+        height: Some(h),
+        error,
+        settings: shared.settings.clone(),
+        aovs: job.aovs,
+        job_key: shared.key.clone(),
+    }
 }
 
 /// Fail every unit whose output or sidecar would replace one of `inputs` (`(what, path)`: the
 /// scenes, the jobs file, the report, the journal), however the paths are spelt.
 pub fn protect(units: &mut [Unit], inputs: &[(String, PathBuf)]) {
+    protect_with(units, inputs, &mut Resolver::default())
+}
+
+fn protect_with(units: &mut [Unit], inputs: &[(String, PathBuf)], resolver: &mut Resolver) {
     let mut by: HashMap<PathBuf, (&str, &Path)> = HashMap::new();
-    for (what, path) in inputs {
+    let mut ids: HashMap<(u64, u64), (&str, &Path)> = HashMap::new();
+    let mut seen: HashSet<&Path> = HashSet::new();
+    // Many jobs name one scene: each path is resolved once.
+    for (what, path) in inputs.iter().filter(|(_, p)| seen.insert(p.as_path())) {
         for follow in [false, true] {
             by.entry(output::resolved(path, follow))
                 .or_insert((what.as_str(), path.as_path()));
         }
+        if let Some(id) = file_id(path) {
+            ids.entry(id).or_insert((what.as_str(), path.as_path()));
+        }
     }
-    let ids: HashMap<(u64, u64), (&str, &Path)> = inputs
-        .iter()
-        .filter_map(|(what, path)| file_id(path).map(|id| (id, (what.as_str(), path.as_path()))))
-        .collect();
     for u in units.iter_mut().filter(|u| u.error.is_none()) {
         let Some(out) = u.output.clone() else { continue };
         for (path, what) in [(out.clone(), "output"), (sidecar_path(&out), "sidecar")] {
             let hit = by
-                .get(&output::resolved(&path, false))
+                .get(&resolver.resolved(&path))
                 .or_else(|| file_id(&path).and_then(|id| ids.get(&id)));
             if let Some((input, given)) = hit {
                 u.error = Some(format!(
@@ -596,9 +711,9 @@ fn failed_unit(index: usize, job: usize, scene: Option<PathBuf>, error: String) 
         width: None,
         height: None,
         error: Some(error),
-        settings: Settings::default(),
+        settings: Arc::new(Settings::default()),
         aovs: false,
-        key_source: Value::Null,
+        job_key: "null".into(),
     }
 }
 
@@ -614,6 +729,7 @@ fn load_for_expansion(path: &Path, memory_limit: Option<u64>) -> Result<Summary,
     let scene = load_with(path, &options).map_err(|e| e.to_string())?;
     let (len, hash) = fnv1a64_file(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
     let file = json!({"bytes": len, "fnv64": format!("{hash:016x}")});
+    let footprint = SceneFootprint::of(&scene);
     // Keep the cameras only: the rest of the scene is dropped here.
     let cameras = Scene {
         source: scene.source,
@@ -627,7 +743,11 @@ fn load_for_expansion(path: &Path, memory_limit: Option<u64>) -> Result<Summary,
         bounds: photongrid::scene::Bounds::empty(),
         report: Default::default(),
     };
-    Ok(Summary { cameras, file })
+    Ok(Summary {
+        cameras,
+        footprint,
+        file,
+    })
 }
 
 /// Keep the units of shard `i` of `n`: those whose index % n == i.
@@ -739,7 +859,7 @@ pub fn run(units: &[Unit], opts: &RunOptions) -> Vec<UnitReport> {
             reports.push(UnitReport::of(u, Status::Failed, Some(e.clone()), 0.0, None));
             continue;
         }
-        let key = (u.scene.clone(), serde_json::to_string(&u.settings).unwrap_or_default());
+        let key = (u.scene.clone(), serde_json::to_string(&*u.settings).unwrap_or_default());
         let g = *by_key.entry(key).or_insert_with(|| {
             groups.push(Vec::new());
             groups.len() - 1
@@ -862,8 +982,8 @@ fn render_group(units: &[&Unit], _opts: &RunOptions) -> Result<Vec<UnitReport>, 
     let load_seconds = t.elapsed().as_secs_f64();
     // Units whose camera is missing fail alone; the others share every pass's photons.
     let mut reports = Vec::new();
-    let by_index: HashMap<usize, &photongrid::scene::Camera> = scene.cameras.iter().map(|c| (c.index, c)).collect();
-    let mut ok: Vec<(&Unit, &photongrid::scene::Camera)> = Vec::new();
+    let by_index: HashMap<usize, &Camera> = scene.cameras.iter().map(|c| (c.index, c)).collect();
+    let mut ok: Vec<(&Unit, &Camera)> = Vec::new();
     for &u in units {
         let camera = match (u.camera_index.and_then(|i| by_index.get(&i)), u.camera.as_deref()) {
             (Some(c), Some(name)) if c.name == name => Ok(*c),
@@ -877,7 +997,7 @@ fn render_group(units: &[&Unit], _opts: &RunOptions) -> Result<Vec<UnitReport>, 
     }
     let mut rest = &ok[..];
     while !rest.is_empty() {
-        let cameras: Vec<&photongrid::scene::Camera> = rest.iter().map(|(_, c)| *c).collect();
+        let cameras: Vec<&Camera> = rest.iter().map(|(_, c)| *c).collect();
         let n = photongrid::memory::cameras_that_fit(&scene, &cameras, settings).clamp(1, rest.len());
         if n < rest.len() && rest.len() == ok.len() {
             tracing::info!(
@@ -900,13 +1020,13 @@ fn render_group(units: &[&Unit], _opts: &RunOptions) -> Result<Vec<UnitReport>, 
 /// Render `chunk`'s cameras together and write each unit's EXR and sidecar.
 fn render_chunk(
     scene: &Scene,
-    chunk: &[(&Unit, &photongrid::scene::Camera)],
+    chunk: &[(&Unit, &Camera)],
     settings: &Settings,
     load_seconds: f64,
 ) -> Result<Vec<UnitReport>, String> {
     let progress = Progress::quiet();
     let t = Instant::now();
-    let cameras: Vec<&photongrid::scene::Camera> = chunk.iter().map(|(_, c)| *c).collect();
+    let cameras: Vec<&Camera> = chunk.iter().map(|(_, c)| *c).collect();
     let request = RenderRequest {
         scene,
         cameras: &cameras,
@@ -954,7 +1074,7 @@ fn render_chunk(
             stats["photon_map_shared_by"] = json!(chunk.len());
             let side = json!({
                 "key": u.key(),
-                "key_source": u.key_source,
+                "key_source": u.key_source(),
                 "exr": {"bytes": bytes.len(), "fnv64": format!("{:016x}", fnv1a64(&bytes))},
                 "unit": u.index, "job": u.job, "scene": u.scene, "camera": u.camera,
                 "written_at": std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0),
@@ -1007,6 +1127,65 @@ mod tests {
         assert_eq!(tidy(Path::new("./a/./b")), Path::new("a/b"));
         assert_eq!(tidy(Path::new("../a")), Path::new("../a"));
         assert_eq!(tidy(Path::new("/x/../y")), Path::new("/y"));
+    }
+
+    #[test]
+    fn resolver_agrees_with_output_resolved() {
+        let dir = std::env::temp_dir().join(format!("pg-resolver-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("out")).unwrap();
+        std::fs::write(dir.join("out/a.exr"), b"x").unwrap();
+        std::os::unix::fs::symlink("out", dir.join("alias")).unwrap();
+        std::os::unix::fs::symlink(dir.join("out/a.exr"), dir.join("out/link.exr")).unwrap();
+        let mut r = Resolver::default();
+        let names = [
+            "out/a.exr",
+            "alias/a.exr",
+            "alias/./a.exr",
+            "alias/../out/a.exr",
+            "out/link.exr",
+            "missing/../out/a.exr",
+            "missing/x/../y.exr",
+            "out/.",
+            "out/..",
+            "a.exr",
+        ];
+        // Twice: the second round answers from the cache.
+        for _ in 0..2 {
+            for name in names {
+                for path in [dir.join(name), PathBuf::from(name)] {
+                    assert_eq!(r.resolved(&path), output::resolved(&path, false), "{}", path.display());
+                }
+            }
+        }
+        assert_eq!(r.resolved(&dir.join("alias/a.exr")), r.resolved(&dir.join("out/a.exr")));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn resume_key_is_the_job_key_with_the_camera() {
+        let settings = Settings {
+            max_radius: 0.1,
+            ..Settings::default()
+        };
+        let job = json!({"version": "v", "scene_file": {"bytes": 1, "fnv64": "f"}, "settings": settings, "aovs": true});
+        let mut u = failed_unit(0, 0, None, String::new());
+        (u.camera, u.camera_index, u.width, u.height) = (Some("Cam".into()), Some(2), Some(64), Some(48));
+        u.job_key = job.to_string().into();
+        let mut whole = job.clone();
+        for (k, v) in [
+            ("camera", json!("Cam")),
+            ("camera_index", json!(2)),
+            ("width", json!(64)),
+            ("height", json!(48)),
+        ] {
+            whole[k] = v;
+        }
+        assert_eq!(u.key_source(), whole);
+        assert_eq!(u.key(), format!("{:016x}", fnv1a64(whole.to_string().as_bytes())));
+        let other = u.key();
+        u.camera_index = Some(3);
+        assert_ne!(u.key(), other);
     }
 
     #[test]

@@ -727,14 +727,28 @@ fn batch(a: BatchArgs) -> Result<()> {
         .map(batch::parse_shard)
         .transpose()
         .map_err(|e| anyhow::anyhow!(e))?;
-    let (units, all) = select_units(&a, shard)?;
+    let text =
+        std::fs::read_to_string(&a.jobs_file).with_context(|| format!("{}: cannot read", a.jobs_file.display()))?;
+    let base = a
+        .jobs_file
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let jobs = batch::parse_jobs(&text, base).map_err(|e| anyhow::anyhow!("{}: {e}", a.jobs_file.display()))?;
+    let mut units = batch::expand(&jobs);
+    batch_refusals(&a, &mut units)?;
+    let all = units.len();
+    if let Some(&i) = a.only.iter().find(|&&i| i >= all) {
+        bail!("--only {i}: {} has {all} units (0..{all})", a.jobs_file.display());
+    }
+    if let Some((i, n)) = shard {
+        units = batch::shard(units, i, n);
+    }
+    if !a.only.is_empty() {
+        units.retain(|u| a.only.contains(&u.index));
+    }
     if a.list {
-        let mut out = std::io::stdout().lock();
-        for u in &units {
-            use std::io::Write;
-            writeln!(out, "{}", serde_json::to_string(u)?)?;
-        }
-        return Ok(());
+        return list_units(&units);
     }
     let report_path = a.report.as_deref().context("--report is required")?;
     // Its folder is created (as the images' are), and it must be writable before any render.
@@ -771,48 +785,33 @@ fn batch(a: BatchArgs) -> Result<()> {
     });
     let doc = batch::report(&a.jobs_file, &reports, run, start.elapsed().as_secs_f64());
     output::write_atomic(report_path, serde_json::to_string_pretty(&doc)?.as_bytes())?;
-    print_batch_summary(&a, &doc, &reports, report_path, start)
+    batch_summary(&a.jobs_file, report_path, &doc, &reports, start)
 }
 
-/// The units of the jobs file that `--shard` and `--only` select, checked against the
-/// batch's own files; and how many units the file has in all.
-fn select_units(a: &BatchArgs, shard: Option<(usize, usize)>) -> Result<(Vec<photongrid_cli::batch::Unit>, usize)> {
-    use photongrid_cli::batch;
-    let text =
-        std::fs::read_to_string(&a.jobs_file).with_context(|| format!("{}: cannot read", a.jobs_file.display()))?;
-    let base = a
-        .jobs_file
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let jobs = batch::parse_jobs(&text, base).map_err(|e| anyhow::anyhow!("{}: {e}", a.jobs_file.display()))?;
-    let mut units = batch::expand(&jobs);
-    batch_refusals(a, &mut units)?;
-    let all = units.len();
-    if let Some(&i) = a.only.iter().find(|&&i| i >= all) {
-        bail!("--only {i}: {} has {all} units (0..{all})", a.jobs_file.display());
+/// `--list`: one JSON line per unit.
+fn list_units(units: &[photongrid_cli::batch::Unit]) -> Result<()> {
+    use std::io::Write;
+    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+    for u in units {
+        writeln!(out, "{}", serde_json::to_string(u)?)?;
     }
-    if let Some((i, n)) = shard {
-        units = batch::shard(units, i, n);
-    }
-    if !a.only.is_empty() {
-        units.retain(|u| a.only.contains(&u.index));
-    }
-    Ok((units, all))
+    out.flush()?;
+    Ok(())
 }
 
-/// The totals line on stderr, then each failed unit; an error when any failed.
-fn print_batch_summary(
-    a: &BatchArgs,
+/// The totals, then each failed unit with the jobs file, its job and camera; an error when
+/// any failed.
+fn batch_summary(
+    jobs_file: &Path,
+    report_path: &Path,
     doc: &serde_json::Value,
     reports: &[photongrid_cli::batch::UnitReport],
-    report_path: &Path,
     start: Instant,
 ) -> Result<()> {
     let t = &doc["totals"];
     eprintln!(
         "{}: {} units: {} done, {} skipped, {} failed in {:.2} s; report {}",
-        a.jobs_file.display(),
+        jobs_file.display(),
         t["units"],
         t["done"],
         t["skipped"],
@@ -827,25 +826,40 @@ fn print_batch_summary(
     if !failed.is_empty() {
         for r in &failed {
             eprintln!(
-                "failed: unit {} (job {}{}): {}",
+                "failed: {} unit {} (job {}{}): {}",
+                jobs_file.display(),
                 r.index,
                 r.job,
                 r.camera.as_deref().map(|c| format!(", camera {c}")).unwrap_or_default(),
                 r.error.as_deref().unwrap_or("")
             );
         }
-        bail!("{} of {} units failed", failed.len(), reports.len());
+        bail!(
+            "{}: {} of {} units failed (see {})",
+            jobs_file.display(),
+            failed.len(),
+            reports.len(),
+            report_path.display()
+        );
     }
     Ok(())
 }
 
 /// The files a batch reads and writes besides the units' outputs, checked before any work:
 /// the report and the journal must be regular-file paths in existing folders, neither the
-/// jobs file nor each other; a unit whose output or sidecar would replace the jobs file, the
-/// report or the journal fails (the scenes are protected by `batch::expand` itself).
+/// jobs file, a scene nor each other; a unit whose output or sidecar would replace the jobs
+/// file, the report or the journal fails (the scenes are protected by `batch::expand` itself).
 fn batch_refusals(a: &BatchArgs, units: &mut [photongrid_cli::batch::Unit]) -> Result<()> {
     let mut plan = output::OutputPlan::new();
     plan.input("the jobs file", &a.jobs_file);
+    if a.report.is_some() || a.journal.is_some() {
+        let mut seen = std::collections::HashSet::new();
+        for u in units.iter().filter(|u| !u.scene.as_os_str().is_empty()) {
+            if seen.insert(u.scene.as_path()) {
+                plan.input(format!("the scene of job {}", u.job), &u.scene);
+            }
+        }
+    }
     let mut inputs = vec![("the jobs file".to_string(), a.jobs_file.clone())];
     if let Some(r) = &a.report {
         plan.output("--report", r)?;

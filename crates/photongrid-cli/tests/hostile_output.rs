@@ -399,3 +399,204 @@ fn batch_cameras_that_do_not_fit_together_render_in_turns() {
         assert_eq!(u["stats"]["photon_map_shared_by"], 2, "{u}");
     }
 }
+
+/// `photongrid batch JOBS --list` run in `cwd`, so that relative spellings stay relative.
+fn list_in(cwd: &Path, jobs: &str) -> Vec<Value> {
+    let out = Command::new(env!("CARGO_BIN_EXE_photongrid"))
+        .current_dir(cwd)
+        .args(["batch", jobs, "--list"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && !stderr.contains("panicked"), "{stderr}");
+    String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
+fn errors(units: &[Value]) -> Vec<String> {
+    units
+        .iter()
+        .map(|u| u["error"].as_str().unwrap_or_default().to_string())
+        .collect()
+}
+
+#[test]
+fn batch_spellings_and_aliases_of_one_output_clash() {
+    let (dir, p, _) = scene("batch-alias");
+    std::fs::create_dir(dir.join("out")).unwrap();
+    // `alias` is another name of the folder `out`.
+    std::os::unix::fs::symlink("out", dir.join("alias")).unwrap();
+    let absolute = dir.join("out/a.exr");
+    let jobs = jobs_file(
+        dir.path(),
+        &p,
+        &["out/a.exr", s(&absolute), "alias/a.exr", "alias/./a.exr", "out/b.exr"],
+    );
+    assert_eq!(jobs, dir.join("jobs.toml"));
+    // The jobs file named relative to the working folder: `out/a.exr` stays relative.
+    let units = list_in(dir.path(), "jobs.toml");
+    assert_eq!(units.len(), 5, "{units:?}");
+    assert_eq!(units[0]["output"], "out/a.exr");
+    let e = errors(&units);
+    assert!(e[0].is_empty() && e[4].is_empty(), "{e:?}");
+    for e in &e[1..4] {
+        assert!(e.contains("also the output of unit 0 (job 0)"), "{e}");
+    }
+}
+
+#[test]
+fn batch_outputs_that_lead_to_an_input_fail_their_unit() {
+    let (dir, p, bytes) = scene("batch-inputs");
+    let out = dir.join("out");
+    std::fs::create_dir(&out).unwrap();
+    let jobs = jobs_file(
+        dir.path(),
+        &p,
+        &[
+            "out/scene.exr",   // a link to the scene
+            "out/hard.exr",    // the scene under a second name (a hard link)
+            "out/jobs.exr",    // a link to the jobs file
+            "out/report.exr",  // the report
+            "out/journal.exr", // the journal
+            "out/ok.exr",
+            "out/linked-sidecar.exr", // a link to unit 5's sidecar
+        ],
+    );
+    std::os::unix::fs::symlink(&p, out.join("scene.exr")).unwrap();
+    std::fs::hard_link(&p, out.join("hard.exr")).unwrap();
+    std::os::unix::fs::symlink(&jobs, out.join("jobs.exr")).unwrap();
+    std::os::unix::fs::symlink("ok.exr.done.json", out.join("linked-sidecar.exr")).unwrap();
+    let jobs_text = std::fs::read(&jobs).unwrap();
+    let (report, journal) = (out.join("report.exr"), out.join("journal.exr"));
+    let args = ["batch", s(&jobs), "--report", s(&report), "--journal", s(&journal)];
+    let r = run(&dir, &args);
+    assert_fails_with(&r, &["5 of 7 units failed"]);
+    let v: Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let units = v["units"].as_array().unwrap();
+    let status: Vec<&str> = units.iter().map(|u| u["status"].as_str().unwrap()).collect();
+    assert_eq!(
+        status,
+        ["failed", "failed", "failed", "failed", "failed", "done", "done"],
+        "{v}"
+    );
+    let e = errors(units);
+    for (i, input) in [
+        (0, "is the scene of job 0"),
+        (1, "is the scene of job 0"),
+        (2, "is the jobs file"),
+        (3, "is the report"),
+        (4, "is the journal"),
+    ] {
+        assert!(e[i].contains(input) && e[i].contains("change `output`"), "{}", e[i]);
+    }
+    assert_eq!(std::fs::read(&p).unwrap(), bytes);
+    assert_eq!(std::fs::read(&jobs).unwrap(), jobs_text);
+    // The journal is still JSON lines; unit 5's sidecar is its own, not unit 6's image (a link
+    // at an output is replaced, never written through), so a rerun skips both.
+    let journal_text = std::fs::read_to_string(&journal).unwrap();
+    assert!(journal_text.lines().all(|l| serde_json::from_str::<Value>(l).is_ok()));
+    assert!(!std::fs::symlink_metadata(out.join("linked-sidecar.exr"))
+        .unwrap()
+        .is_symlink());
+    let r = run(&dir, &args);
+    assert_fails_with(&r, &["5 of 7 units failed"]);
+    let v: Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let status: Vec<&str> = v["units"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|u| u["status"].as_str().unwrap())
+        .collect();
+    assert_eq!(&status[5..], ["skipped", "skipped"], "{v}");
+}
+
+#[test]
+fn batch_report_or_journal_that_is_a_scene_is_refused() {
+    let (dir, p, bytes) = scene("batch-report-scene");
+    let jobs = jobs_file(dir.path(), &p, &["out/a.exr"]);
+    let report = dir.join("report.json");
+    for args in [
+        vec!["batch", s(&jobs), "--report", s(&p)],
+        vec!["batch", s(&jobs), "--report", s(&report), "--journal", s(&p)],
+    ] {
+        assert_fails_with(&run(&dir, &args), &["is the scene of job 0"]);
+        assert_eq!(std::fs::read(&p).unwrap(), bytes);
+    }
+    assert!(!dir.join("out/a.exr").exists());
+}
+
+#[test]
+fn batch_units_over_the_memory_limit_are_refused_up_front() {
+    let (dir, p, _) = scene("batch-memory");
+    let jobs = dir.join("jobs.toml");
+    let text = format!(
+        "[defaults]\nwidth = 16\nheight = 12\nphotons = 1000\nspp = 1\n\
+         [[job]]\nscene = \"{s}\"\noutput = \"out/ok0.exr\"\n\
+         [[job]]\nscene = \"{s}\"\noutput = \"out/huge.exr\"\nwidth = 8000\nheight = 6000\nmemory_limit = \"1G\"\n\
+         [[job]]\nscene = \"{s}\"\noutput = \"out/spp.exr\"\nspp = 4294967295\nmemory_limit = \"8G\"\n\
+         [[job]]\nscene = \"{s}\"\noutput = \"out/ok3.exr\"\n",
+        s = s(&p)
+    );
+    std::fs::write(&jobs, text).unwrap();
+    // Listing already shows the refusal: the estimate, the limit and what to change.
+    let e = errors(&list(&dir, &jobs));
+    assert!(e[0].is_empty() && e[3].is_empty(), "{e:?}");
+    for needle in [
+        "job 1",
+        s(&p),
+        "camera 0 'Camera'",
+        "refused before rendering",
+        "images of 1 camera at 8000×6000",
+        "memory limit of 1.0 GiB",
+        "lower the resolution (--width, --height)",
+        "memory_limit = \"8G\"",
+    ] {
+        assert!(e[1].contains(needle), "lacks {needle:?}: {}", e[1]);
+    }
+    assert!(
+        e[2].contains("--spp 4294967295") && e[2].contains("lower --spp"),
+        "{}",
+        e[2]
+    );
+    let (report, journal) = (dir.join("report.json"), dir.join("journal.jsonl"));
+    let args = ["batch", s(&jobs), "--report", s(&report), "--journal", s(&journal)];
+    let statuses = || -> Vec<String> {
+        let v: Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+        let units = v["units"].as_array().unwrap();
+        units
+            .iter()
+            .map(|u| u["status"].as_str().unwrap().to_string())
+            .collect()
+    };
+    let r = run(&dir, &args);
+    let first = format!("failed: {} unit 1 (job 1, camera Camera): job 1", s(&jobs));
+    let second = format!("failed: {} unit 2 (job 2, camera Camera)", s(&jobs));
+    assert_fails_with(
+        &r,
+        &[&first, &second, "2 of 4 units failed", "refused before rendering"],
+    );
+    assert_eq!(statuses(), ["done", "failed", "failed", "done"]);
+    assert!(dir.join("out/ok0.exr").is_file() && dir.join("out/ok3.exr").is_file());
+    assert!(!dir.join("out/huge.exr").exists() && !dir.join("out/spp.exr").exists());
+    // Resumed: the finished units are skipped and the refused ones refused again at once.
+    let r = run(&dir, &args);
+    assert_fails_with(&r, &[&first, "2 of 4 units failed"]);
+    assert_eq!(statuses(), ["skipped", "failed", "failed", "skipped"]);
+    // In neither run did a refused unit start rendering.
+    let events: Vec<Value> = std::fs::read_to_string(&journal)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    for unit in [1, 2] {
+        let mine: Vec<&str> = events
+            .iter()
+            .filter(|e| e["unit"] == unit)
+            .map(|e| e["event"].as_str().unwrap())
+            .collect();
+        assert_eq!(mine, ["failed", "failed"], "unit {unit}: {events:?}");
+    }
+}

@@ -105,8 +105,13 @@ pub fn memory_limit(settings: &Settings) -> (u64, String) {
     }
 }
 
-/// `MemTotal` of `/proc/meminfo`, in bytes.
+/// `MemTotal` of `/proc/meminfo`, in bytes, read once (a batch checks every unit).
 fn physical_ram() -> Option<u64> {
+    static RAM: std::sync::OnceLock<Option<u64>> = std::sync::OnceLock::new();
+    *RAM.get_or_init(read_physical_ram)
+}
+
+fn read_physical_ram() -> Option<u64> {
     let text = std::fs::read_to_string("/proc/meminfo").ok()?;
     let line = text.lines().find(|l| l.starts_with("MemTotal:"))?;
     let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
@@ -155,15 +160,57 @@ fn mean_albedo(scene: &Scene) -> f64 {
     }
 }
 
+/// What the estimate needs of a scene, so that a front end which drops the scene once its
+/// cameras are known (batch expansion) can still check each unit before rendering it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SceneFootprint {
+    /// Triangles (the scene's copy and the BVH).
+    pub triangles: u64,
+    /// Texels of all textures.
+    pub texels: u64,
+    /// Whether a material is specular (caustic photons are then traced).
+    pub specular: bool,
+    /// Mean diffuse albedo, weighted by area ([`mean_albedo`]).
+    pub mean_albedo: f64,
+}
+
+impl SceneFootprint {
+    /// The footprint of `scene`.
+    pub fn of(scene: &Scene) -> Self {
+        SceneFootprint {
+            triangles: scene.triangles.len() as u64,
+            texels: scene
+                .textures
+                .iter()
+                .map(|t| (t.width as u64).saturating_mul(t.height as u64))
+                .fold(0u64, u64::saturating_add),
+            specular: scene.has_specular(),
+            mean_albedo: mean_albedo(scene),
+        }
+    }
+}
+
 /// Estimate the memory of rendering `cameras` of `scene` with `settings` in the current
 /// thread pool (its size sets the per-thread part). Items are sorted largest first.
 pub fn estimate_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) -> MemoryEstimate {
+    estimate_footprint(&SceneFootprint::of(scene), cameras, settings)
+}
+
+/// [`estimate_render`] from a scene's [`SceneFootprint`].
+pub fn estimate_footprint(scene: &SceneFootprint, cameras: &[&Camera], settings: &Settings) -> MemoryEstimate {
     let (limit, limit_origin) = memory_limit(settings);
     let mut items = Items::default();
-    add_scene(&mut items, scene);
-    add_cameras(&mut items, cameras, settings);
-    add_photons(&mut items, scene, settings);
-    add_grids(&mut items, settings);
+    // The scene and its BVH.
+    let (tris, texels) = (scene.triangles, scene.texels);
+    items.add(
+        format!("the scene and its BVH ({tris} triangles, {texels} texels)"),
+        tris.saturating_mul(BYTES_PER_TRIANGLE)
+            .saturating_add(texels.saturating_mul(12)),
+        "render a smaller scene",
+    );
+    image_items(&mut items, cameras, settings);
+    photon_items(&mut items, scene, settings);
+    grid_items(&mut items, settings);
     let mut items = items.0;
     items.sort_by(|a, b| b.bytes.cmp(&a.bytes));
     MemoryEstimate {
@@ -173,7 +220,7 @@ pub fn estimate_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) 
     }
 }
 
-/// The estimate's items in the order they are added; one of no bytes is left out.
+/// The parts of an estimate; empty ones are left out.
 #[derive(Default)]
 struct Items(Vec<Item>);
 
@@ -189,25 +236,8 @@ impl Items {
     }
 }
 
-/// The scene and its BVH.
-fn add_scene(items: &mut Items, scene: &Scene) {
-    let texels: u64 = scene
-        .textures
-        .iter()
-        .map(|t| (t.width as u64).saturating_mul(t.height as u64))
-        .sum();
-    let tris = scene.triangles.len() as u64;
-    items.add(
-        format!("the scene and its BVH ({tris} triangles, {texels} texels)"),
-        tris.saturating_mul(BYTES_PER_TRIANGLE)
-            .saturating_add(texels.saturating_mul(12)),
-        "render a smaller scene",
-    );
-}
-
-/// The cameras' images across passes, SPPM's per-sample state, one camera's pass while it
-/// renders, and the worker threads' strata.
-fn add_cameras(items: &mut Items, cameras: &[&Camera], settings: &Settings) {
+/// The cameras' images, the pass being rendered and written, the sample strata.
+fn image_items(items: &mut Items, cameras: &[&Camera], settings: &Settings) {
     let needs = settings.method.needs();
     let spp = settings.spp.max(1) as u64;
     let sizes: Vec<(u64, u32, u32)> = cameras
@@ -257,14 +287,14 @@ fn add_cameras(items: &mut Items, cameras: &[&Camera], settings: &Settings) {
     );
 }
 
-/// One pass's photons, from the stored photons per path at the scene's mean albedo.
-fn add_photons(items: &mut Items, scene: &Scene, settings: &Settings) {
-    let caustic = if scene.has_specular() && settings.photons > 0 {
+/// One pass's photons.
+fn photon_items(items: &mut Items, scene: &SceneFootprint, settings: &Settings) {
+    let caustic = if scene.specular && settings.photons > 0 {
         settings.caustic_photons as u64
     } else {
         0
     };
-    let rho = mean_albedo(scene);
+    let rho = scene.mean_albedo;
     let depth = settings.photon_hits().max(1) as i32;
     let per_path = if rho < 1.0 {
         (1.0 - rho.powi(depth)) / (1.0 - rho)
@@ -289,8 +319,8 @@ fn add_photons(items: &mut Items, scene: &Scene, settings: &Settings) {
     );
 }
 
-/// The grids the method needs.
-fn add_grids(items: &mut Items, settings: &Settings) {
+/// The grids the estimate needs.
+fn grid_items(items: &mut Items, settings: &Settings) {
     let needs = settings.method.needs();
     if needs.grids && settings.grid != crate::settings::GridMode::None {
         let cells = (settings.grid_res as u64).saturating_pow(2);
@@ -315,14 +345,19 @@ fn add_grids(items: &mut Items, settings: &Settings) {
 /// How many of `cameras`, from the first, can render together within the limit (at least 1:
 /// a single camera that does not fit is refused by [`check_render`] with its own message).
 pub fn cameras_that_fit(scene: &Scene, cameras: &[&Camera], settings: &Settings) -> usize {
-    if cameras.len() <= 1 || estimate_render(scene, cameras, settings).fits() {
+    cameras_that_fit_footprint(&SceneFootprint::of(scene), cameras, settings)
+}
+
+/// [`cameras_that_fit`] from a scene's [`SceneFootprint`].
+fn cameras_that_fit_footprint(scene: &SceneFootprint, cameras: &[&Camera], settings: &Settings) -> usize {
+    if cameras.len() <= 1 || estimate_footprint(scene, cameras, settings).fits() {
         return cameras.len();
     }
     // The estimate grows with the cameras: bisect.
     let (mut lo, mut hi) = (1usize, cameras.len());
     while lo + 1 < hi {
         let mid = lo + (hi - lo) / 2;
-        if estimate_render(scene, &cameras[..mid], settings).fits() {
+        if estimate_footprint(scene, &cameras[..mid], settings).fits() {
             lo = mid;
         } else {
             hi = mid;
@@ -333,7 +368,16 @@ pub fn cameras_that_fit(scene: &Scene, cameras: &[&Camera], settings: &Settings)
 
 /// Refuse a render whose estimate is over the limit, before anything large is allocated.
 pub fn check_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) -> Result<MemoryEstimate, MemoryError> {
-    let estimate = estimate_render(scene, cameras, settings);
+    check_footprint(&SceneFootprint::of(scene), cameras, settings)
+}
+
+/// [`check_render`] from a scene's [`SceneFootprint`].
+pub fn check_footprint(
+    scene: &SceneFootprint,
+    cameras: &[&Camera],
+    settings: &Settings,
+) -> Result<MemoryEstimate, MemoryError> {
+    let estimate = estimate_footprint(scene, cameras, settings);
     if estimate.fits() {
         tracing::debug!(
             "memory estimate {} of {} ({})",
@@ -351,8 +395,8 @@ pub fn check_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) -> 
         .collect();
     let mut change = estimate.items[0].change.clone();
     if cameras.len() > 1 {
-        let n = cameras_that_fit(scene, cameras, settings);
-        if estimate_render(scene, &cameras[..n], settings).fits() {
+        let n = cameras_that_fit_footprint(scene, cameras, settings);
+        if estimate_footprint(scene, &cameras[..n], settings).fits() {
             change = format!("{change}; {n} of the {} cameras fit at once", cameras.len());
         }
     }

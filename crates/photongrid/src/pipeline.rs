@@ -5,13 +5,14 @@
 //! render through [`render`], so what is measured is what users run.
 
 use crate::accel::Accel;
-use crate::estimate::{Estimator, IrradianceCache, PassGrids, PhotonMap};
+use crate::estimate::{Accumulation, Estimator, IrradianceCache, PassGrids, PhotonMap};
 use crate::film::Film;
 use crate::grid::multiscale::{MultiscaleGrids, MultiscaleParams};
 use crate::grid::PlaneGrids;
 use crate::grid::{GridParams, Grids};
 use crate::photon::{trace_photons, Photon, PhotonKind, PhotonStats, TraceSettings};
 use crate::progress::Progress;
+use crate::render::budget::{plan, Costs, PassSize, Plan};
 use crate::render::progressive::{Accumulator, Budget, Stop};
 use crate::render::{PhotonData, RenderSettings};
 use crate::sampling::pass_seed;
@@ -19,7 +20,7 @@ use crate::scene::{Camera, Scene};
 use crate::settings::{DirectLighting, Settings, SettingsError};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 /// Why a render could not run.
 #[derive(Debug, thiserror::Error)]
@@ -63,6 +64,8 @@ pub struct PhaseTimes {
     pub load: f64,
     /// Building the BVH.
     pub bvh: f64,
+    /// Measuring the scene's costs to size the passes of a time budget.
+    pub probe: f64,
     /// Tracing photons.
     pub photons: f64,
     /// Plane detection, counting and wavelet filtering (adaptive method).
@@ -85,6 +88,7 @@ impl PhaseTimes {
         [
             ("load", self.load),
             ("bvh", self.bvh),
+            ("probe", self.probe),
             ("photons", self.photons),
             ("grids", self.grids),
             ("irradiance", self.irradiance),
@@ -122,6 +126,9 @@ pub struct PassReport {
     pub seconds: Vec<f64>,
     /// Checkpoint images written between passes.
     pub checkpoints: u32,
+    /// Passes given up at the time budget's deadline (their work is lost).
+    #[serde(default)]
+    pub dropped: u32,
 }
 
 /// Memory use.
@@ -252,6 +259,21 @@ pub struct RenderReport {
     pub cameras: Vec<CameraReport>,
     /// The grids, when the estimate used them.
     pub grids: Option<GridReport>,
+    /// How a time budget sized the passes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub budget: Option<BudgetReport>,
+}
+
+impl RenderReport {
+    fn started(scene: &Scene, settings: &Settings) -> Self {
+        RenderReport {
+            scene: scene.source.clone(),
+            version: env!("CARGO_PKG_VERSION").to_string(),
+            settings: settings.clone(),
+            threads: rayon::current_num_threads(),
+            ..RenderReport::default()
+        }
+    }
 }
 
 /// The images and the report of a render, and the grids for inspection (`--dump-grids`).
@@ -341,10 +363,12 @@ fn caustic_photons(scene: &Scene, settings: &Settings) -> usize {
 /// [`pass_seed`] of the pass) and `settings.spp` new samples per pixel, accumulated per camera,
 /// until `settings.passes` passes ran or the next pass would end after `settings.time` seconds
 /// counted from `request.start` ([`Budget`]; neither given: one pass), or the progress observer
-/// asks to stop ([`Progress::should_stop`], polled between passes). The same seed and pass
-/// count give the same images whatever the thread count. Each pass's photons serve every
-/// camera, then are dropped. `checkpoint` writes the images so far every `every` seconds,
-/// except after the last pass (the caller writes the final images).
+/// asks to stop ([`Progress::should_stop`], polled between passes). With a time budget the
+/// passes are sized by a probe first ([`plan_passes`]) and a camera pass still running at the
+/// deadline is dropped. The same seed and pass count give the same images whatever the thread
+/// count. Each pass's photons serve every camera, then are dropped. `checkpoint` writes the
+/// images so far every `every` seconds, except after the last pass (the caller writes the
+/// final images).
 pub fn render(
     request: &RenderRequest<'_>,
     progress: &Progress<'_>,
@@ -359,29 +383,26 @@ pub fn render(
     settings.validate()?;
     check_photon_memory(settings.photons, caustic_photons(scene, settings))?;
     let estimate = crate::memory::check_render(scene, cameras, settings)?;
-    let mut report = RenderReport {
-        scene: scene.source.clone(),
-        version: env!("CARGO_PKG_VERSION").to_string(),
-        settings: settings.clone(),
-        threads: rayon::current_num_threads(),
-        ..RenderReport::default()
+    let mut report = RenderReport::started(scene, settings);
+    let accel = build_accel(scene, progress, &mut report.seconds);
+    let deadline = settings
+        .time
+        .map(|t| start + Duration::from_secs_f64(deadline_seconds(t)));
+    let pass_settings = match settings.time {
+        Some(t) => {
+            let left = deadline_seconds(t) - start.elapsed().as_secs_f64();
+            let plan = plan_passes(scene, &accel, cameras, settings, left, progress, &mut report.seconds);
+            let pass_settings = plan.plan.size.apply(settings);
+            report.budget = Some(plan);
+            pass_settings
+        }
+        None => settings.clone(),
     };
-    let times = &mut report.seconds;
-    let accel = build_accel(scene, progress, times);
     let budget = Budget {
         passes: settings.passes,
-        time: settings.time,
+        time: settings.time.map(deadline_seconds),
     };
-    let accumulation = settings.method.needs().accumulation;
-    let mut accs: Vec<Accumulator> = cameras
-        .iter()
-        .map(|c| {
-            let (w, h) = resolution(c, settings);
-            Accumulator::new(accumulation, w, h, settings.spp)
-        })
-        .collect();
-    let mut render_seconds = vec![0.0; cameras.len()];
-    let mut grids = GridState::default();
+    let mut run = PassLoop::new(scene, &accel, cameras, pass_settings, deadline);
     let (mut last, mut last_checkpoint) = (0.0f64, Instant::now());
     let stop = loop {
         let done = report.passes.count;
@@ -389,22 +410,21 @@ pub fn render(
             break Stop::Requested;
         }
         if let Err(stop) = budget.next(done, start.elapsed().as_secs_f64(), last) {
-            break stop;
+            let left = budget.time.unwrap_or(0.0) - start.elapsed().as_secs_f64();
+            if stop != Stop::Time || run.fill(report.budget.as_mut(), left, last).is_none() {
+                break stop;
+            }
         }
         let t = Instant::now();
-        let photons = trace_pass(scene, &accel, settings, done, &mut grids, progress, times);
-        report.photons.add(&photons.stats);
-        report.memory.photon_map_bytes = report.memory.photon_map_bytes.max(photons.map.memory_bytes());
-        let input = PhotonData {
-            estimator: Estimator::for_pass(settings, done, &photons.map, grids.view()),
-            irradiance: photons.irradiance.as_ref(),
-        };
-        for (i, (camera, acc)) in cameras.iter().zip(&mut accs).enumerate() {
-            let seconds = render_pass(scene, &accel, input, done, camera, settings, acc, progress);
-            render_seconds[i] += seconds;
-            times.render += seconds;
+        if !run.pass(done, progress, &mut report) {
+            report.passes.dropped = 1;
+            break Stop::Time;
         }
-        drop(photons);
+        if run.filled {
+            report.passes.count += 1;
+            report.passes.seconds.push(t.elapsed().as_secs_f64());
+            break Stop::Time;
+        }
         last = t.elapsed().as_secs_f64();
         report.passes.seconds.push(last);
         report.passes.count += 1;
@@ -413,39 +433,279 @@ pub fn render(
             let more = !progress.should_stop() && budget.next(done + 1, start.elapsed().as_secs_f64(), last).is_ok();
             if more && last_checkpoint.elapsed().as_secs_f64() >= cp.every {
                 let tw = Instant::now();
-                let films: Vec<Film> = accs.iter().map(Accumulator::film).collect();
-                (cp.write)(&films, done + 1).map_err(RenderError::Checkpoint)?;
-                times.write += tw.elapsed().as_secs_f64();
+                (cp.write)(&run.films(), done + 1).map_err(RenderError::Checkpoint)?;
+                report.seconds.write += tw.elapsed().as_secs_f64();
                 report.passes.checkpoints += 1;
                 last_checkpoint = Instant::now();
             }
         }
     };
     report.passes.stopped_by = Some(stop);
-    let films: Vec<Film> = accs.iter().map(Accumulator::film).collect();
-    report.cameras = cameras
-        .iter()
-        .zip(&films)
-        .zip(render_seconds)
-        .map(|((c, f), render_seconds)| CameraReport {
-            camera: c.name.clone(),
-            index: c.index,
-            width: f.width,
-            height: f.height,
-            render_seconds,
-            mean_rgb: f.mean(),
-            nonfinite_pixels: f.nonfinite(),
-            output: None,
-            png: None,
-        })
-        .collect();
-    report.memory.bvh_bytes = accel.memory_bytes();
-    report.memory.grids_bytes = grids.memory_bytes();
-    report.memory.peak_bytes = peak_memory_bytes();
     report.memory.estimated_bytes = estimate.total();
-    report.grids = GridReport::of(&grids);
-    report.cpu_seconds = cpu_seconds();
-    Ok(Rendered { films, report, grids })
+    Ok(run.finish(report))
+}
+
+/// Seconds after the start by which the passes of a `time`-second budget must end: what is
+/// left is for writing the images.
+pub fn deadline_seconds(time: f64) -> f64 {
+    time - (WRITE_RESERVE_SECONDS + WRITE_RESERVE_SHARE * time).min(0.5 * time)
+}
+
+/// Time kept for writing outputs after the last pass: a fixed part and a share of the budget.
+const WRITE_RESERVE_SECONDS: f64 = 0.15;
+const WRITE_RESERVE_SHARE: f64 = 0.01;
+
+/// The passes of one render: every camera's accumulated image and the grids, for one pass
+/// size.
+struct PassLoop<'a> {
+    scene: &'a Scene,
+    accel: &'a Accel,
+    cameras: &'a [&'a Camera],
+    settings: Settings,
+    deadline: Option<Instant>,
+    /// Weight of the next pass in each camera's average (1 for a regular pass).
+    weight: f32,
+    /// The next pass is the smaller last one of a time budget.
+    filled: bool,
+    accs: Vec<Accumulator>,
+    render_seconds: Vec<f64>,
+    grids: GridState,
+}
+
+impl<'a> PassLoop<'a> {
+    fn new(
+        scene: &'a Scene,
+        accel: &'a Accel,
+        cameras: &'a [&'a Camera],
+        settings: Settings,
+        deadline: Option<Instant>,
+    ) -> Self {
+        let accumulation = settings.method.needs().accumulation;
+        let accs = cameras
+            .iter()
+            .map(|c| {
+                let (w, h) = resolution(c, &settings);
+                Accumulator::new(accumulation, w, h, settings.spp)
+            })
+            .collect();
+        PassLoop {
+            scene,
+            accel,
+            cameras,
+            settings,
+            deadline,
+            weight: 1.0,
+            filled: false,
+            accs,
+            render_seconds: vec![0.0; cameras.len()],
+            grids: GridState::default(),
+        }
+    }
+
+    /// Trace pass `done`'s photons and add the pass to every camera. False when a camera's
+    /// pass ran into the deadline and was dropped (never the first pass: it is the image).
+    fn pass(&mut self, done: u32, progress: &Progress<'_>, report: &mut RenderReport) -> bool {
+        let (scene, accel, settings) = (self.scene, self.accel, &self.settings);
+        let times = &mut report.seconds;
+        let photons = trace_pass(scene, accel, settings, done, &mut self.grids, progress, times);
+        report.photons.add(&photons.stats);
+        report.memory.photon_map_bytes = report.memory.photon_map_bytes.max(photons.map.memory_bytes());
+        let input = PhotonData {
+            estimator: Estimator::for_pass(settings, done, &photons.map, self.grids.view()),
+            irradiance: photons.irradiance.as_ref(),
+        };
+        let deadline = self.deadline.filter(|_| done > 0);
+        for (i, (camera, acc)) in self.cameras.iter().zip(&mut self.accs).enumerate() {
+            let job = PassJob {
+                pass: done,
+                deadline,
+                weight: self.weight,
+            };
+            let (seconds, added) = render_pass(scene, accel, input, job, camera, settings, acc, progress);
+            self.render_seconds[i] += seconds;
+            times.render += seconds;
+            if !added {
+                return false;
+            }
+        }
+        true
+    }
+
+    /// Make the next pass a smaller last one that fits in the `left` seconds, when the regular
+    /// pass (which took `last` seconds) does not ([`crate::render::budget::fill`]); its weight
+    /// in the averages is its predicted share of a regular pass. Not for SPPM, whose passes
+    /// must all have the same samples.
+    fn fill(&mut self, budget: Option<&mut BudgetReport>, left: f64, last: f64) -> Option<()> {
+        let budget = budget?;
+        if self.settings.method.needs().accumulation != Accumulation::Average {
+            return None;
+        }
+        let regular = budget.plan.size;
+        let predicted = budget.costs.pass_seconds(&regular);
+        let size = crate::render::budget::fill(&budget.costs, left, regular, predicted, last)?;
+        self.weight = (budget.costs.pass_seconds(&size) / predicted) as f32;
+        self.settings = size.apply(&self.settings);
+        self.filled = true;
+        budget.fill = Some(size);
+        Some(())
+    }
+
+    fn films(&self) -> Vec<Film> {
+        self.accs.iter().map(Accumulator::film).collect()
+    }
+
+    /// The images and the report's per-camera, memory and grid parts.
+    fn finish(self, mut report: RenderReport) -> Rendered {
+        let films = self.films();
+        report.cameras = self
+            .cameras
+            .iter()
+            .zip(&films)
+            .zip(self.render_seconds)
+            .map(|((c, f), render_seconds)| CameraReport {
+                camera: c.name.clone(),
+                index: c.index,
+                width: f.width,
+                height: f.height,
+                render_seconds,
+                mean_rgb: f.mean(),
+                nonfinite_pixels: f.nonfinite(),
+                output: None,
+                png: None,
+            })
+            .collect();
+        report.memory.bvh_bytes = self.accel.memory_bytes();
+        report.memory.grids_bytes = self.grids.memory_bytes();
+        report.memory.peak_bytes = peak_memory_bytes();
+        report.grids = GridReport::of(&self.grids);
+        report.cpu_seconds = cpu_seconds();
+        Rendered {
+            films,
+            report,
+            grids: self.grids,
+        }
+    }
+}
+
+/// Photon paths of a probe pass: this share of the requested ones, at least [`PROBE_MIN_PATHS`].
+const PROBE_SHARE: usize = 32;
+const PROBE_MIN_PATHS: usize = 10_000;
+/// The probe's camera pass renders this many times fewer pixels along each axis.
+const PROBE_SHRINK: u32 = 8;
+
+/// What the time budget decided: the probe's measurements, the plan, and the deadline.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct BudgetReport {
+    /// The budget asked for.
+    pub time: f64,
+    /// When passes must have ended (the rest is for writing images).
+    pub deadline: f64,
+    /// Costs the probe measured.
+    pub costs: Costs,
+    /// Pass size and why.
+    pub plan: Plan,
+    /// The smaller last pass that filled the time a regular one would have overrun.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fill: Option<PassSize>,
+}
+
+/// Measure this scene's costs with a small pass (few photons, a low-resolution camera pass
+/// with and without final gathering, grids and images thrown away), then size the passes for
+/// the `left` seconds ([`plan`]).
+pub fn plan_passes(
+    scene: &Scene,
+    accel: &Accel,
+    cameras: &[&Camera],
+    settings: &Settings,
+    left: f64,
+    progress: &Progress<'_>,
+    times: &mut PhaseTimes,
+) -> BudgetReport {
+    let t0 = Instant::now();
+    let requested = PassSize::of(settings, caustic_photons(scene, settings));
+    let small = |n: usize| {
+        if n == 0 {
+            0
+        } else {
+            (n / PROBE_SHARE).max(PROBE_MIN_PATHS.min(n))
+        }
+    };
+    let probe = PassSize {
+        photons: small(requested.photons),
+        caustic_photons: small(requested.caustic_photons),
+        spp: 1,
+        gather: requested.gather,
+    };
+    let probe_settings = probe.apply(settings);
+    let mut scratch = PhaseTimes::default();
+    let mut grids = GridState::default();
+    let photons = trace_pass(
+        scene,
+        accel,
+        &probe_settings,
+        u32::MAX,
+        &mut grids,
+        progress,
+        &mut scratch,
+    );
+    let photon_seconds = scratch.photons + scratch.irradiance + scratch.build;
+    let input = PhotonData {
+        estimator: Estimator::for_pass(&probe_settings, 0, &photons.map, grids.view()),
+        irradiance: photons.irradiance.as_ref(),
+    };
+    let (mut samples, mut plain, mut gathered, mut pixels) = (0u64, 0.0, 0.0, 0u64);
+    for camera in cameras {
+        let mut rs = render_settings(camera, &probe_settings, u32::MAX);
+        pixels += rs.width as u64 * rs.height as u64;
+        rs.width = (rs.width / PROBE_SHRINK).max(4);
+        rs.height = (rs.height / PROBE_SHRINK).max(3);
+        samples += rs.width as u64 * rs.height as u64;
+        for gather in [0, probe.gather] {
+            let t = Instant::now();
+            let film = crate::render::render(
+                scene,
+                accel,
+                input,
+                camera,
+                &RenderSettings { gather, ..rs.clone() },
+                &|_| {},
+            );
+            drop(film);
+            *(if gather == 0 { &mut plain } else { &mut gathered }) += t.elapsed().as_secs_f64();
+        }
+    }
+    let samples = samples.max(1) as f64;
+    let costs = Costs {
+        per_pass: scratch.grids,
+        per_path: photon_seconds / probe.paths().max(1) as f64,
+        per_sample: plain / samples,
+        per_gather_ray: if probe.gather > 0 {
+            (gathered - plain).max(0.0) / (samples * probe.gather as f64)
+        } else {
+            0.0
+        },
+        pixels,
+        probe_seconds: t0.elapsed().as_secs_f64(),
+    };
+    times.probe += costs.probe_seconds;
+    let plan = plan(&costs, left - costs.probe_seconds, requested);
+    tracing::info!(reason = plan.reason.as_str(), "pass size");
+    if plan.over_budget {
+        tracing::warn!(
+            "a time budget of {:.1} s is too short for this scene: one pass of the smallest size is predicted to take \
+             {:.1} s, so the render will end late; give --time {:.0} or more, or fewer pixels (--width/--height)",
+            settings.time.unwrap_or(0.0),
+            plan.predicted_pass_seconds,
+            (settings.time.unwrap_or(0.0) - left + costs.probe_seconds + plan.predicted_pass_seconds).ceil()
+        );
+    }
+    BudgetReport {
+        time: settings.time.unwrap_or(0.0),
+        deadline: settings.time.map(deadline_seconds).unwrap_or(0.0),
+        costs,
+        plan,
+        fill: None,
+    }
 }
 
 fn build_accel(scene: &Scene, progress: &Progress<'_>, times: &mut PhaseTimes) -> Accel {
@@ -468,7 +728,8 @@ pub struct GridState {
 }
 
 impl GridState {
-    fn view(&self) -> PassGrids<'_> {
+    /// The grids as an estimator reads them.
+    pub fn view(&self) -> PassGrids<'_> {
         PassGrids {
             paper: self.paper.as_ref(),
             multiscale: self.multiscale.as_ref(),
@@ -719,22 +980,32 @@ fn render_settings(camera: &Camera, settings: &Settings, pass: u32) -> RenderSet
     }
 }
 
-/// Add pass `pass` of `camera` to `acc`; returns its seconds.
+/// Which pass a camera pass is, when it must have ended, and its weight in the average.
+#[derive(Clone, Copy)]
+struct PassJob {
+    pass: u32,
+    deadline: Option<Instant>,
+    weight: f32,
+}
+
+/// Add pass `pass` of `camera` to `acc` (dropped if still running at `deadline`); returns its
+/// seconds and whether it was added.
 #[allow(clippy::too_many_arguments)]
 fn render_pass(
     scene: &Scene,
     accel: &Accel,
     photons: PhotonData<'_>,
-    pass: u32,
+    job: PassJob,
     camera: &Camera,
     settings: &Settings,
     acc: &mut Accumulator,
     progress: &Progress<'_>,
-) -> f64 {
+) -> (f64, bool) {
+    let PassJob { pass, deadline, weight } = job;
     let rs = render_settings(camera, settings, pass);
     progress.camera(&camera.name);
     let phase = progress.phase("render", rs.height as u64);
-    {
+    let added = {
         let _s = tracing::info_span!(
             "render",
             camera = camera.name.as_str(),
@@ -743,9 +1014,18 @@ fn render_pass(
             pass
         )
         .entered();
-        acc.add_pass(scene, accel, photons, camera, &rs, &|n| phase.inc(n as u64));
-    }
-    phase.finish()
+        acc.add_pass(
+            scene,
+            accel,
+            photons,
+            camera,
+            &rs,
+            &|n| phase.inc(n as u64),
+            deadline,
+            weight,
+        )
+    };
+    (phase.finish(), added)
 }
 
 /// The photon data of pass 0, for rendering cameras one at a time with [`render_camera`]
@@ -800,7 +1080,12 @@ pub fn render_camera(
         estimator: Estimator::for_pass(settings, 0, &prepared.map, prepared.grids.view()),
         irradiance: prepared.irradiance.as_ref(),
     };
-    render_pass(scene, &prepared.accel, input, 0, camera, settings, &mut acc, progress);
+    let job = PassJob {
+        pass: 0,
+        deadline: None,
+        weight: 1.0,
+    };
+    render_pass(scene, &prepared.accel, input, job, camera, settings, &mut acc, progress);
     acc.film()
 }
 
@@ -812,14 +1097,82 @@ pub fn select_cameras<'a>(scene: &'a Scene, keys: &[String]) -> Result<Vec<&'a C
     if keys.is_empty() || keys.iter().any(|k| k == "all") {
         return Ok(scene.cameras.iter().collect());
     }
+    if keys.len() <= 8 {
+        return keys
+            .iter()
+            .map(|k| scene.camera(k).map_err(RenderError::UnknownCamera))
+            .collect();
+    }
+    // Many keys (a jobs file listing thousands of cameras): look them up in maps, not one
+    // scan of the cameras per key; the first camera of a name or index wins, as in
+    // `Scene::camera`.
+    let mut by_name = std::collections::HashMap::new();
+    let mut by_index = std::collections::HashMap::new();
+    for c in &scene.cameras {
+        by_name.entry(c.name.as_str()).or_insert(c);
+        by_index.entry(c.index).or_insert(c);
+    }
     keys.iter()
-        .map(|k| scene.camera(k).map_err(RenderError::UnknownCamera))
+        .map(|k| {
+            by_name
+                .get(k.as_str())
+                .or_else(|| k.parse::<usize>().ok().and_then(|i| by_index.get(&i)))
+                .copied()
+                .ok_or_else(|| RenderError::UnknownCamera(scene.camera(k).err().unwrap_or_default()))
+        })
         .collect()
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn many_camera_keys_select_as_few_do() {
+        let camera = |name: &str, index: usize| Camera {
+            name: name.into(),
+            index,
+            to_world: glam::Mat4::IDENTITY,
+            projection: crate::scene::Projection::Perspective {
+                yfov: 1.0,
+                aspect: None,
+            },
+        };
+        // Names that repeat, a name that is another camera's index, two nodes of one camera.
+        let mut cameras: Vec<Camera> = (0..30).map(|i| camera(&format!("c{}", i % 25), i)).collect();
+        cameras.push(camera("3", 40));
+        cameras.push(camera("twin", 7));
+        let scene = Scene {
+            source: PathBuf::from("s.glb"),
+            triangles: vec![],
+            materials: vec![],
+            textures: vec![],
+            tangents: vec![],
+            glossy_roughness: 0.0,
+            lights: vec![],
+            cameras,
+            bounds: crate::scene::Bounds::empty(),
+            report: Default::default(),
+        };
+        let keys: Vec<String> = ["c3", "c2", "3", "7", "twin", "29", "c0", "c24", "0", "40", "c1"]
+            .iter()
+            .map(|k| k.to_string())
+            .collect();
+        let picked: Vec<(String, usize)> = select_cameras(&scene, &keys)
+            .unwrap()
+            .iter()
+            .map(|c| (c.name.clone(), c.index))
+            .collect();
+        let one_by_one: Vec<(String, usize)> = keys
+            .iter()
+            .map(|k| scene.camera(k).map(|c| (c.name.clone(), c.index)).unwrap())
+            .collect();
+        assert_eq!(picked, one_by_one);
+        let mut bad = keys.clone();
+        bad.push("nope".into());
+        let e = select_cameras(&scene, &bad).unwrap_err().to_string();
+        assert!(e.contains("nope") && e.contains("c24"), "{e}");
+    }
 
     #[test]
     fn summary_lists_the_phases_that_ran_in_order() {

@@ -14,7 +14,10 @@ use crate::surface::SurfacePoint;
 use crate::Rgb;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
 
+pub mod budget;
 pub mod progressive;
 pub mod sppm;
 
@@ -81,9 +84,25 @@ pub fn render(
     settings: &RenderSettings,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Film {
+    let film = render_until(scene, accel, photons, camera, settings, progress, None);
+    film.expect("a render without a deadline completes")
+}
+
+/// [`render`], given up (`None`) when `deadline` passes before every row is done: the rows
+/// still to do are skipped, so a pass that overruns a time budget ends at the deadline.
+pub fn render_until(
+    scene: &Scene,
+    accel: &Accel,
+    photons: PhotonData<'_>,
+    camera: &Camera,
+    settings: &RenderSettings,
+    progress: &(dyn Fn(usize) + Sync),
+    deadline: Option<Instant>,
+) -> Option<Film> {
     let (w, h) = (settings.width, settings.height);
     let mut film = Film::new(w, h);
     let spp = settings.spp.max(1);
+    let late = AtomicBool::new(false);
     film.color
         .par_chunks_mut(w as usize)
         .zip(film.aov.par_chunks_mut(w as usize))
@@ -91,6 +110,10 @@ pub fn render(
         .for_each_init(
             || Tracer::new(scene, accel, photons, settings),
             |tracer, (y, (row, aovs))| {
+                if late.load(Ordering::Relaxed) || deadline.is_some_and(|d| Instant::now() >= d) {
+                    late.store(true, Ordering::Relaxed);
+                    return;
+                }
                 for x in 0..w as usize {
                     let pixel = (y * w as usize + x) as u64;
                     let mut sum = Rgb::ZERO;
@@ -108,7 +131,7 @@ pub fn render(
                 progress(1);
             },
         );
-    film
+    (!late.into_inner()).then_some(film)
 }
 
 /// The N-rooks strata of a pixel's `spp` samples.

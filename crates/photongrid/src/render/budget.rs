@@ -1,0 +1,363 @@
+//! The time budget: when passes stop, and how large each pass is so that `--time T` ends at T.
+//!
+//! With a time budget, a short probe (a few photons, a low-resolution camera pass) measures
+//! what a photon and a camera sample cost on this scene and machine ([`Costs`]); [`plan`] then
+//! sizes the passes so that several fit in what is left, and [`Budget`] starts a pass only if
+//! the last one's duration says it will end in time. All passes after the probe have the same
+//! size: the progressive estimates (the adaptive method's shrinking k, the multiscale grids'
+//! per-pass mean, SPPM) assume it.
+
+use crate::settings::Settings;
+use serde::{Deserialize, Serialize};
+
+/// Why the passes stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Stop {
+    /// The pass count was reached (one pass when neither count nor time is given).
+    Passes,
+    /// The next pass would have overrun the time budget.
+    Time,
+    /// The caller asked to stop (Esc in Blender, Ctrl+C): the passes done so far are kept.
+    Requested,
+}
+
+/// When a progressive render stops.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Budget {
+    /// At most this many passes (none: unlimited if `time` is set, else one).
+    pub passes: Option<u32>,
+    /// Seconds, counted from the caller's start, by which the last pass must have ended.
+    pub time: Option<f64>,
+}
+
+impl Budget {
+    /// Whether to start another pass after `done` passes, `elapsed` seconds into the budget,
+    /// when the last pass took `last_pass` seconds. The first pass always runs. A pass is
+    /// started only if it is expected to end within the budget, the estimate being the previous
+    /// pass (same size; it follows the machine's load). A pass slower than the one before (load
+    /// rising) would overrun: the camera pass is then cut at the deadline and dropped.
+    pub fn next(&self, done: u32, elapsed: f64, last_pass: f64) -> Result<(), Stop> {
+        if done == 0 {
+            return Ok(());
+        }
+        let max = self.passes.unwrap_or(if self.time.is_some() { u32::MAX } else { 1 });
+        if done >= max {
+            return Err(Stop::Passes);
+        }
+        match self.time {
+            Some(t) if elapsed + last_pass > t => Err(Stop::Time),
+            _ => Ok(()),
+        }
+    }
+}
+
+/// What a pass is made of: the knobs the planner turns.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PassSize {
+    /// Global photon paths.
+    pub photons: usize,
+    /// Caustic-pass photon paths.
+    pub caustic_photons: usize,
+    /// Camera samples per pixel.
+    pub spp: u32,
+    /// Final-gather rays per camera sample.
+    pub gather: u32,
+}
+
+impl PassSize {
+    /// The pass `settings` ask for.
+    pub fn of(settings: &Settings, caustic_photons: usize) -> Self {
+        PassSize {
+            photons: settings.photons,
+            caustic_photons,
+            spp: settings.spp.max(1),
+            gather: settings.effective_gather(),
+        }
+    }
+
+    /// `settings` with this pass size (the caustic count only if the scene has a caustic pass).
+    pub fn apply(&self, settings: &Settings) -> Settings {
+        let mut s = settings.clone();
+        s.photons = self.photons;
+        if settings.caustic_photons > 0 && self.caustic_photons > 0 {
+            s.caustic_photons = self.caustic_photons;
+        }
+        s.spp = self.spp;
+        s.gather = self.gather;
+        s
+    }
+
+    /// Photon paths, both passes.
+    pub fn paths(&self) -> usize {
+        self.photons + self.caustic_photons
+    }
+}
+
+/// What the probe measured: wall seconds per unit of work on this scene and machine.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Costs {
+    /// Per pass, whatever its size (the grids' filtering).
+    pub per_pass: f64,
+    /// Per photon path (tracing, irradiance precomputation, index), both passes.
+    pub per_path: f64,
+    /// Per camera sample without final gathering (all cameras' pixels counted).
+    pub per_sample: f64,
+    /// Per final-gather ray.
+    pub per_gather_ray: f64,
+    /// Camera pixels per pass, all cameras.
+    pub pixels: u64,
+    /// Wall seconds the probe took.
+    pub probe_seconds: f64,
+}
+
+impl Costs {
+    /// Predicted wall seconds of a pass of `size`.
+    pub fn pass_seconds(&self, size: &PassSize) -> f64 {
+        let samples = self.pixels as f64 * size.spp as f64;
+        self.per_pass
+            + size.paths() as f64 * self.per_path
+            + samples * (self.per_sample + size.gather as f64 * self.per_gather_ray)
+    }
+}
+
+/// Fewest photon paths a planned pass keeps (below this a photon map is mostly noise).
+pub const MIN_PATHS: usize = 20_000;
+/// With less time than this many requested passes, passes are made smaller so that about this
+/// many fit: the first pass's prediction comes from the probe and is the least certain (it may
+/// be off by this factor and still end in time), the passes after it are timed from the first.
+pub const PLANNED_PASSES: f64 = 1.6;
+
+/// How the passes of a time-budgeted render are sized, and why.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Plan {
+    /// The size of every pass.
+    pub size: PassSize,
+    /// Predicted seconds of one pass.
+    pub predicted_pass_seconds: f64,
+    /// Seconds left for passes when the plan was made.
+    pub seconds_left: f64,
+    /// Why this size.
+    pub reason: String,
+    /// The budget is too short for even the smallest pass: the render ends late.
+    pub over_budget: bool,
+}
+
+/// Size the passes for `left` seconds: the requested pass when [`PLANNED_PASSES`] of them fit;
+/// otherwise a pass of `left / PLANNED_PASSES` made as [`shrink`] says.
+pub fn plan(costs: &Costs, left: f64, requested: PassSize) -> Plan {
+    let full = costs.pass_seconds(&requested);
+    if full <= left / PLANNED_PASSES {
+        let n = (left / full.max(1e-9)).floor();
+        return Plan {
+            size: requested,
+            predicted_pass_seconds: full,
+            seconds_left: left,
+            reason: format!("the requested pass ({full:.2} s predicted) fits about {n} times"),
+            over_budget: false,
+        };
+    }
+    let (size, scale) = shrink(costs, left / PLANNED_PASSES, requested);
+    let predicted = costs.pass_seconds(&size);
+    Plan {
+        size,
+        predicted_pass_seconds: predicted,
+        seconds_left: left,
+        reason: format!(
+            "the requested pass ({full:.2} s predicted) does not fit {PLANNED_PASSES} times in {left:.2} s: \
+             {} spp, {} gather rays, {:.1} % of the photons",
+            size.spp,
+            size.gather,
+            scale * 100.0,
+        ),
+        over_budget: predicted > left,
+    }
+}
+
+/// Share of the time left that a last, smaller pass may be planned to take.
+pub const FILL_SHARE: f64 = 0.8;
+/// A last pass shorter than this share of a regular one is not worth its overhead.
+pub const MIN_FILL: f64 = 0.25;
+
+/// A last, smaller pass for the `left` seconds after which a regular pass (of `size`, predicted
+/// `predicted`, measured `measured` seconds) no longer fits: the costs are corrected by the
+/// measured/predicted ratio. `None` when even a small pass would not pay.
+pub fn fill(costs: &Costs, left: f64, size: PassSize, predicted: f64, measured: f64) -> Option<PassSize> {
+    if left < MIN_FILL * measured || predicted <= 0.0 {
+        return None;
+    }
+    let k = measured / predicted;
+    let corrected = Costs {
+        per_pass: costs.per_pass * k,
+        per_path: costs.per_path * k,
+        per_sample: costs.per_sample * k,
+        per_gather_ray: costs.per_gather_ray * k,
+        ..*costs
+    };
+    let (fill, _) = shrink(&corrected, FILL_SHARE * left, size);
+    // Photons and samples have floors; a pass cut at the deadline is dropped, so allow some.
+    (corrected.pass_seconds(&fill) <= left).then_some(fill)
+}
+
+/// Photon paths a shrunk pass keeps before it gives up camera samples: this share of the
+/// requested ones (at least [`MIN_PATHS`]). Measured on cornell_glass at equal time, camera
+/// samples and gather rays lower the error more than photons beyond this (docs/time_budget.md).
+pub const PHOTON_FLOOR_SHARE: f64 = 1.0 / 16.0;
+
+/// A pass of `requested`'s shape that takes `target` seconds, giving up first what lowers the
+/// error least: photons down to [`PHOTON_FLOOR_SHARE`], then samples per pixel (down to 1),
+/// then gather rays (down to 1), then photons down to [`MIN_PATHS`]. Photons keep their
+/// global : caustic ratio. Returns the size and the photons' scale.
+pub fn shrink(costs: &Costs, target: f64, requested: PassSize) -> (PassSize, f64) {
+    let paths = requested.paths().max(1) as f64;
+    let floor = |share: f64| share.max(MIN_PATHS as f64 / paths).min(1.0);
+    let with_scale = |size: PassSize, scale: f64| PassSize {
+        photons: (requested.photons as f64 * scale).round() as usize,
+        caustic_photons: (requested.caustic_photons as f64 * scale).round() as usize,
+        ..size
+    };
+    // The scale of the photons that fills what the camera leaves of the target.
+    let fit = |size: &PassSize, lowest: f64| {
+        let camera = costs.pass_seconds(&PassSize {
+            photons: 0,
+            caustic_photons: 0,
+            ..*size
+        });
+        ((target - camera) / (paths * costs.per_path.max(1e-12))).clamp(lowest, 1.0)
+    };
+    let over = |size: PassSize, scale: f64| costs.pass_seconds(&with_scale(size, scale)) > target * (1.0 + 1e-9);
+    let mut size = requested;
+    let mut scale = fit(&size, floor(PHOTON_FLOOR_SHARE));
+    while size.spp > 1 && over(size, scale) {
+        size.spp -= 1;
+        scale = fit(&size, floor(PHOTON_FLOOR_SHARE));
+    }
+    while size.gather > 1 && over(size, scale) {
+        size.gather -= 1;
+        scale = fit(&size, floor(PHOTON_FLOOR_SHARE));
+    }
+    if over(size, scale) {
+        scale = fit(&size, floor(0.0));
+    }
+    (with_scale(size, scale), scale)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn budget_rules() {
+        let one = Budget::default();
+        assert_eq!(one.next(0, 100.0, 0.0), Ok(()));
+        assert_eq!(one.next(1, 0.0, 0.0), Err(Stop::Passes));
+        let three = Budget {
+            passes: Some(3),
+            time: None,
+        };
+        assert_eq!(three.next(2, 1e9, 1e9), Ok(()));
+        assert_eq!(three.next(3, 0.0, 0.0), Err(Stop::Passes));
+        let timed = Budget {
+            passes: None,
+            time: Some(10.0),
+        };
+        assert_eq!(timed.next(0, 50.0, 0.0), Ok(()), "the minimum is one pass");
+        assert_eq!(timed.next(5, 7.0, 3.0), Ok(()));
+        assert_eq!(timed.next(5, 7.5, 3.0), Err(Stop::Time));
+        let both = Budget {
+            passes: Some(4),
+            time: Some(10.0),
+        };
+        assert_eq!(both.next(4, 1.0, 1.0), Err(Stop::Passes));
+        assert_eq!(both.next(2, 9.5, 1.0), Err(Stop::Time));
+    }
+
+    fn costs() -> Costs {
+        Costs {
+            per_pass: 0.05,
+            per_path: 1e-6,
+            per_sample: 2e-6,
+            per_gather_ray: 1e-6,
+            pixels: 640 * 480,
+            probe_seconds: 0.1,
+        }
+    }
+
+    fn requested() -> PassSize {
+        PassSize {
+            photons: 2_000_000,
+            caustic_photons: 1_000_000,
+            spp: 4,
+            gather: 8,
+        }
+    }
+
+    #[test]
+    fn a_long_budget_keeps_the_requested_pass() {
+        let c = costs();
+        let full = c.pass_seconds(&requested());
+        let p = plan(&c, full * 10.0, requested());
+        assert_eq!(p.size, requested());
+        assert!(!p.over_budget);
+    }
+
+    #[test]
+    fn a_short_budget_gives_up_photons_first_then_samples() {
+        let c = costs();
+        let full = c.pass_seconds(&requested());
+        let mut last = requested();
+        for left in [full * 1.5, full, full / 2.0, full / 4.0] {
+            let p = plan(&c, left, requested());
+            assert!(p.predicted_pass_seconds <= left / PLANNED_PASSES * 1.0001, "{p:?}");
+            assert!(!p.over_budget);
+            // Fewer samples as the budget shrinks (photons may come back in the time a sample
+            // leaves: samples are whole).
+            assert!(p.size.spp <= last.spp, "{p:?} after {last:?}");
+            // Samples are given up only when the photons at their floor do not leave room for
+            // one more.
+            if p.size.spp < requested().spp {
+                let floor = PHOTON_FLOOR_SHARE * requested().paths() as f64 / requested().paths() as f64;
+                let one_more = PassSize {
+                    spp: p.size.spp + 1,
+                    ..p.size
+                };
+                let at_floor = PassSize {
+                    photons: (requested().photons as f64 * floor) as usize,
+                    caustic_photons: (requested().caustic_photons as f64 * floor) as usize,
+                    ..one_more
+                };
+                assert!(c.pass_seconds(&at_floor) > left / PLANNED_PASSES, "{p:?}");
+            }
+            let ratio = p.size.photons as f64 / p.size.caustic_photons as f64;
+            assert!((ratio - 2.0).abs() < 1e-3, "{ratio}");
+            last = p.size;
+        }
+        assert!(last.spp < requested().spp, "the shortest budget cut samples: {last:?}");
+    }
+
+    #[test]
+    fn gather_rays_go_after_samples_and_a_hopeless_budget_says_so() {
+        let c = costs();
+        let one_spp = c.pixels as f64 * (c.per_sample + 8.0 * c.per_gather_ray);
+        let p = plan(&c, one_spp, requested());
+        assert_eq!(p.size.spp, 1);
+        assert!(p.size.gather < 8 && p.size.gather >= 1, "{p:?}");
+        let hopeless = plan(&c, 1e-3, requested());
+        assert!(hopeless.over_budget);
+        assert_eq!((hopeless.size.spp, hopeless.size.gather), (1, 1));
+        assert_eq!(hopeless.size.paths(), MIN_PATHS);
+    }
+
+    #[test]
+    fn a_fill_pass_uses_the_measured_cost_and_is_skipped_when_too_small() {
+        let c = costs();
+        let size = plan(&c, c.pass_seconds(&requested()), requested()).size;
+        let predicted = c.pass_seconds(&size);
+        // The pass took twice the prediction; 1.2 of its durations are left.
+        let measured = 2.0 * predicted;
+        let f = fill(&c, 1.2 * measured, size, predicted, measured).expect("a fill pass fits");
+        assert!(2.0 * c.pass_seconds(&f) <= 1.2 * measured * 1.0001);
+        assert!(f.paths() <= size.paths() && f.spp <= size.spp);
+        assert_eq!(fill(&c, 0.1 * measured, size, predicted, measured), None);
+    }
+}

@@ -1,0 +1,114 @@
+//! The time budget's logic on a real scene, without timing anything: a budget sizes the passes
+//! from a probe and reports why, a pass still running at the deadline is dropped, and a
+//! budgeted render gives a complete image. (Whether `--time T` ends at T on the public scenes
+//! is measured by `bench/time_budget.sh`, not asserted here: CI machines are shared.)
+
+use photongrid::pipeline::{render, RenderRequest};
+use photongrid::progress::Progress;
+use photongrid::render::progressive::Stop;
+use photongrid::Settings;
+use std::time::{Duration, Instant};
+
+fn scene() -> photongrid::scene::Scene {
+    photongrid::load(&photongrid_testkit::repo_root().join("samples/cornell_glass.glb")).unwrap()
+}
+
+fn small() -> Settings {
+    Settings {
+        width: Some(64),
+        height: Some(48),
+        photons: 200_000,
+        caustic_photons: 100_000,
+        ..Settings::default()
+    }
+}
+
+#[test]
+fn a_budget_sizes_passes_from_a_probe_and_says_why() {
+    let scene = scene();
+    let cameras: Vec<_> = scene.cameras.iter().collect();
+    let settings = Settings {
+        time: Some(3600.0),
+        passes: Some(2),
+        ..small()
+    };
+    let request = RenderRequest {
+        scene: &scene,
+        cameras: &cameras,
+        settings: &settings,
+        start: Instant::now(),
+    };
+    let r = render(&request, &Progress::quiet(), None).unwrap();
+    let b = r.report.budget.expect("a budgeted render reports its plan");
+    assert!(b.costs.per_path > 0.0 && b.costs.per_sample > 0.0, "{b:?}");
+    assert_eq!(b.costs.pixels, 64 * 48);
+    // An hour is plenty: the requested pass is kept, and the pass count still applies.
+    assert_eq!(b.plan.size.photons, settings.photons);
+    assert_eq!(b.plan.size.spp, settings.spp);
+    assert!(b.plan.reason.contains("fits"), "{}", b.plan.reason);
+    assert_eq!(r.report.passes.count, 2);
+    assert_eq!(r.report.passes.stopped_by, Some(Stop::Passes));
+    assert!(r.report.seconds.probe > 0.0);
+}
+
+#[test]
+fn a_budget_already_spent_still_gives_one_complete_pass_and_no_more() {
+    let scene = scene();
+    let cameras: Vec<_> = scene.cameras.iter().collect();
+    let settings = Settings {
+        time: Some(1.0),
+        ..small()
+    };
+    // The budget started long ago: the probe plans the smallest pass, which runs to the end
+    // (the first pass is never dropped), and no second pass starts.
+    let request = RenderRequest {
+        scene: &scene,
+        cameras: &cameras,
+        settings: &settings,
+        start: Instant::now() - Duration::from_secs(60),
+    };
+    let r = render(&request, &Progress::quiet(), None).unwrap();
+    let b = r.report.budget.expect("plan");
+    assert!(b.plan.over_budget, "{b:?}");
+    assert_eq!(b.plan.size.spp, 1);
+    assert_eq!(r.report.passes.count, 1);
+    assert_eq!(r.report.passes.dropped, 0);
+    assert_eq!(r.report.passes.stopped_by, Some(Stop::Time));
+    let film = &r.films[0];
+    assert!(
+        film.mean().iter().all(|c| c.is_finite() && *c > 0.0),
+        "{:?}",
+        film.mean()
+    );
+    assert_eq!(film.nonfinite(), 0);
+}
+
+#[test]
+fn a_camera_pass_past_its_deadline_is_given_up() {
+    use photongrid::estimate::Estimator;
+    use photongrid::render::{render_until, PhotonData, RenderSettings};
+    let scene = scene();
+    let settings = small();
+    let prepared = photongrid::prepare(&scene, &settings, &Progress::quiet(), &mut Default::default()).unwrap();
+    let input = PhotonData {
+        estimator: Estimator::for_pass(&settings, 0, &prepared.map, prepared.grids.view()),
+        irradiance: prepared.irradiance.as_ref(),
+    };
+    let rs = RenderSettings {
+        width: 32,
+        height: 24,
+        spp: 1,
+        direct: settings.direct,
+        light_samples: settings.light_samples,
+        max_specular_depth: settings.max_specular_depth,
+        split_depth: settings.split_depth,
+        seed: 1,
+        gather: 2,
+    };
+    let camera = &scene.cameras[0];
+    let past = Some(Instant::now() - Duration::from_millis(1));
+    assert!(render_until(&scene, &prepared.accel, input, camera, &rs, &|_| {}, past).is_none());
+    let later = Some(Instant::now() + Duration::from_secs(3600));
+    let film = render_until(&scene, &prepared.accel, input, camera, &rs, &|_| {}, later).expect("in time");
+    assert!(film.mean()[1] > 0.0);
+}
