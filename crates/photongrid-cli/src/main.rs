@@ -639,6 +639,9 @@ fn print_render_summary(a: &RenderArgs, report: &pipeline::RenderReport) {
                 phases.join(" · "),
                 report.seconds.total
             );
+            if let Some(b) = &report.budget {
+                eprintln!("time budget {:.1} s: {}", b.time, b.plan.reason);
+            }
         }
         ProgressMode::Json => {
             let seconds: serde_json::Map<String, serde_json::Value> = report
