@@ -12,7 +12,7 @@ use crate::grid::PlaneGrids;
 use crate::grid::{GridParams, Grids};
 use crate::photon::{trace_photons, Photon, PhotonKind, PhotonStats, TraceSettings};
 use crate::progress::Progress;
-use crate::render::budget::{plan, Costs, PassSize, Plan};
+use crate::render::budget::{corrected, plan, Costs, PassSize, Plan, PLANNED_PASSES, REPLANNED_PASSES};
 use crate::render::progressive::{Accumulator, Budget, Stop};
 use crate::render::{PhotonData, RenderSettings};
 use crate::sampling::pass_seed;
@@ -416,6 +416,7 @@ pub fn render(
             }
         }
         let t = Instant::now();
+        let before = report.seconds.clone();
         if !run.pass(done, progress, &mut report) {
             report.passes.dropped = 1;
             break Stop::Time;
@@ -428,6 +429,15 @@ pub fn render(
         last = t.elapsed().as_secs_f64();
         report.passes.seconds.push(last);
         report.passes.count += 1;
+        if let (0, Some(b)) = (done, report.budget.as_mut()) {
+            let s = &report.seconds;
+            let photons = s.photons + s.grids + s.irradiance + s.build
+                - (before.photons + before.grids + before.irradiance + before.build);
+            let left = budget.time.unwrap_or(0.0) - start.elapsed().as_secs_f64();
+            if let Some(next) = run.replan(b, left, photons, s.render - before.render) {
+                last = next;
+            }
+        }
         tracing::info!(pass = done + 1, seconds = format!("{last:.3}"), "pass done");
         if let Some(cp) = checkpoint.as_mut() {
             let more = !progress.should_stop() && budget.next(done + 1, start.elapsed().as_secs_f64(), last).is_ok();
@@ -540,14 +550,38 @@ impl<'a> PassLoop<'a> {
         if self.settings.method.needs().accumulation != Accumulation::Average {
             return None;
         }
-        let regular = budget.plan.size;
-        let predicted = budget.costs.pass_seconds(&regular);
-        let size = crate::render::budget::fill(&budget.costs, left, regular, predicted, last)?;
-        self.weight = (budget.costs.pass_seconds(&size) / predicted) as f32;
+        let (costs, regular) = budget.current();
+        let predicted = costs.pass_seconds(&regular);
+        let size = crate::render::budget::fill(costs, left, regular, predicted, last)?;
+        self.weight *= (costs.pass_seconds(&size) / predicted) as f32;
         self.settings = size.apply(&self.settings);
         self.filled = true;
         budget.fill = Some(size);
         Some(())
+    }
+
+    /// After the first pass of a time budget: size the next passes for the `left` seconds with
+    /// the costs the first pass measured (`photon_seconds`, `camera_seconds`); their weight in
+    /// the averages is their predicted share of the first. Returns the next pass's predicted
+    /// seconds. Not for SPPM, whose passes must all have the same samples.
+    fn replan(
+        &mut self,
+        budget: &mut BudgetReport,
+        left: f64,
+        photon_seconds: f64,
+        camera_seconds: f64,
+    ) -> Option<f64> {
+        if self.settings.method.needs().accumulation != Accumulation::Average {
+            return None;
+        }
+        let first = budget.plan.size;
+        let costs = corrected(&budget.costs, &first, photon_seconds, camera_seconds);
+        let plan = plan(&costs, left, budget.requested, REPLANNED_PASSES);
+        self.weight = (costs.pass_seconds(&plan.size) / costs.pass_seconds(&first)) as f32;
+        self.settings = plan.size.apply(&self.settings);
+        let next = plan.predicted_pass_seconds;
+        budget.replan = Some(Replan { costs, plan });
+        Some(next)
     }
 
     fn films(&self) -> Vec<Film> {
@@ -602,11 +636,35 @@ pub struct BudgetReport {
     pub deadline: f64,
     /// Costs the probe measured.
     pub costs: Costs,
-    /// Pass size and why.
+    /// The pass the settings ask for.
+    pub requested: PassSize,
+    /// Size of the first pass and why.
     pub plan: Plan,
+    /// The passes after the first, sized with the costs it measured.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub replan: Option<Replan>,
     /// The smaller last pass that filled the time a regular one would have overrun.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fill: Option<PassSize>,
+}
+
+/// The passes after the first of a time budget.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Replan {
+    /// The probe's costs corrected by the first pass's photon and camera seconds.
+    pub costs: Costs,
+    /// Their size and why.
+    pub plan: Plan,
+}
+
+impl BudgetReport {
+    /// The costs and pass size in force now.
+    fn current(&self) -> (&Costs, PassSize) {
+        match &self.replan {
+            Some(r) => (&r.costs, r.plan.size),
+            None => (&self.costs, self.plan.size),
+        }
+    }
 }
 
 /// Measure this scene's costs with a small pass (few photons, a low-resolution camera pass
@@ -688,7 +746,7 @@ pub fn plan_passes(
         probe_seconds: t0.elapsed().as_secs_f64(),
     };
     times.probe += costs.probe_seconds;
-    let plan = plan(&costs, left - costs.probe_seconds, requested);
+    let plan = plan(&costs, left - costs.probe_seconds, requested, PLANNED_PASSES);
     tracing::info!(reason = plan.reason.as_str(), "pass size");
     if plan.over_budget {
         tracing::warn!(
@@ -702,8 +760,10 @@ pub fn plan_passes(
     BudgetReport {
         time: settings.time.unwrap_or(0.0),
         deadline: settings.time.map(deadline_seconds).unwrap_or(0.0),
+        requested,
         costs,
         plan,
+        replan: None,
         fill: None,
     }
 }

@@ -123,10 +123,13 @@ impl Costs {
 
 /// Fewest photon paths a planned pass keeps (below this a photon map is mostly noise).
 pub const MIN_PATHS: usize = 20_000;
-/// With less time than this many requested passes, passes are made smaller so that about this
-/// many fit: the first pass's prediction comes from the probe and is the least certain (it may
-/// be off by this factor and still end in time), the passes after it are timed from the first.
-pub const PLANNED_PASSES: f64 = 1.6;
+/// With less time than this many requested passes, the first pass is made smaller so that
+/// about this many fit: its prediction comes from the probe, whose sparse photons make the
+/// camera's costs the least certain (it may be off by this factor and still end in time).
+pub const PLANNED_PASSES: f64 = 3.0;
+/// After the first pass, the costs it measured size the passes for the time left so that
+/// about this many fit.
+pub const REPLANNED_PASSES: f64 = 1.5;
 
 /// How the passes of a time-budgeted render are sized, and why.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -143,11 +146,11 @@ pub struct Plan {
     pub over_budget: bool,
 }
 
-/// Size the passes for `left` seconds: the requested pass when [`PLANNED_PASSES`] of them fit;
-/// otherwise a pass of `left / PLANNED_PASSES` made as [`shrink`] says.
-pub fn plan(costs: &Costs, left: f64, requested: PassSize) -> Plan {
+/// Size the passes for `left` seconds: the requested pass when `passes` of them fit; otherwise
+/// a pass of `left / passes` made as [`shrink`] says.
+pub fn plan(costs: &Costs, left: f64, requested: PassSize, passes: f64) -> Plan {
     let full = costs.pass_seconds(&requested);
-    if full <= left / PLANNED_PASSES {
+    if full <= left / passes {
         let n = (left / full.max(1e-9)).floor();
         return Plan {
             size: requested,
@@ -157,20 +160,46 @@ pub fn plan(costs: &Costs, left: f64, requested: PassSize) -> Plan {
             over_budget: false,
         };
     }
-    let (size, scale) = shrink(costs, left / PLANNED_PASSES, requested);
+    let (size, scale) = shrink(costs, left / passes, requested);
     let predicted = costs.pass_seconds(&size);
     Plan {
         size,
         predicted_pass_seconds: predicted,
         seconds_left: left,
         reason: format!(
-            "the requested pass ({full:.2} s predicted) does not fit {PLANNED_PASSES} times in {left:.2} s: \
+            "the requested pass ({full:.2} s predicted) does not fit {passes} times in {left:.2} s: \
              {} spp, {} gather rays, {:.1} % of the photons",
             size.spp,
             size.gather,
             scale * 100.0,
         ),
         over_budget: predicted > left,
+    }
+}
+
+/// `costs` corrected by what a pass of `size` measured: the photons' side (`photon_seconds`)
+/// and the camera's side (`camera_seconds`) each by its measured/predicted ratio.
+pub fn corrected(costs: &Costs, size: &PassSize, photon_seconds: f64, camera_seconds: f64) -> Costs {
+    let camera = costs.pass_seconds(&PassSize {
+        photons: 0,
+        caustic_photons: 0,
+        ..*size
+    }) - costs.per_pass;
+    let photons = costs.per_pass + size.paths() as f64 * costs.per_path;
+    let ratio = |measured: f64, predicted: f64| {
+        if predicted > 0.0 && measured > 0.0 {
+            measured / predicted
+        } else {
+            1.0
+        }
+    };
+    let (kp, kc) = (ratio(photon_seconds, photons), ratio(camera_seconds, camera));
+    Costs {
+        per_pass: costs.per_pass * kp,
+        per_path: costs.per_path * kp,
+        per_sample: costs.per_sample * kc,
+        per_gather_ray: costs.per_gather_ray * kc,
+        ..*costs
     }
 }
 
@@ -296,7 +325,7 @@ mod tests {
     fn a_long_budget_keeps_the_requested_pass() {
         let c = costs();
         let full = c.pass_seconds(&requested());
-        let p = plan(&c, full * 10.0, requested());
+        let p = plan(&c, full * 10.0, requested(), PLANNED_PASSES);
         assert_eq!(p.size, requested());
         assert!(!p.over_budget);
     }
@@ -307,18 +336,19 @@ mod tests {
         let full = c.pass_seconds(&requested());
         let mut last = requested();
         for left in [full * 1.5, full, full / 2.0, full / 4.0] {
-            let p = plan(&c, left, requested());
+            let p = plan(&c, left, requested(), PLANNED_PASSES);
             assert!(p.predicted_pass_seconds <= left / PLANNED_PASSES * 1.0001, "{p:?}");
             assert!(!p.over_budget);
             // Fewer samples as the budget shrinks (photons may come back in the time a sample
             // leaves: samples are whole).
             assert!(p.size.spp <= last.spp, "{p:?} after {last:?}");
             // Samples are given up only when the photons at their floor do not leave room for
-            // one more.
+            // one more (with every gather ray: gather rays go after samples).
             if p.size.spp < requested().spp {
                 let floor = PHOTON_FLOOR_SHARE * requested().paths() as f64 / requested().paths() as f64;
                 let one_more = PassSize {
                     spp: p.size.spp + 1,
+                    gather: requested().gather,
                     ..p.size
                 };
                 let at_floor = PassSize {
@@ -339,10 +369,10 @@ mod tests {
     fn gather_rays_go_after_samples_and_a_hopeless_budget_says_so() {
         let c = costs();
         let one_spp = c.pixels as f64 * (c.per_sample + 8.0 * c.per_gather_ray);
-        let p = plan(&c, one_spp, requested());
+        let p = plan(&c, one_spp, requested(), PLANNED_PASSES);
         assert_eq!(p.size.spp, 1);
         assert!(p.size.gather < 8 && p.size.gather >= 1, "{p:?}");
-        let hopeless = plan(&c, 1e-3, requested());
+        let hopeless = plan(&c, 1e-3, requested(), PLANNED_PASSES);
         assert!(hopeless.over_budget);
         assert_eq!((hopeless.size.spp, hopeless.size.gather), (1, 1));
         assert_eq!(hopeless.size.paths(), MIN_PATHS);
@@ -351,7 +381,7 @@ mod tests {
     #[test]
     fn a_fill_pass_uses_the_measured_cost_and_is_skipped_when_too_small() {
         let c = costs();
-        let size = plan(&c, c.pass_seconds(&requested()), requested()).size;
+        let size = plan(&c, c.pass_seconds(&requested()), requested(), PLANNED_PASSES).size;
         let predicted = c.pass_seconds(&size);
         // The pass took twice the prediction; 1.2 of its durations are left.
         let measured = 2.0 * predicted;
@@ -359,5 +389,23 @@ mod tests {
         assert!(2.0 * c.pass_seconds(&f) <= 1.2 * measured * 1.0001);
         assert!(f.paths() <= size.paths() && f.spp <= size.spp);
         assert_eq!(fill(&c, 0.1 * measured, size, predicted, measured), None);
+    }
+
+    #[test]
+    fn measured_costs_correct_each_side_by_its_own_ratio() {
+        let c = costs();
+        let size = PassSize {
+            photons: 100_000,
+            caustic_photons: 50_000,
+            spp: 1,
+            gather: 4,
+        };
+        let photons = c.per_pass + size.paths() as f64 * c.per_path;
+        let camera = c.pass_seconds(&size) - photons;
+        let k = corrected(&c, &size, 2.0 * photons, 0.5 * camera);
+        assert!((k.per_path / c.per_path - 2.0).abs() < 1e-9);
+        assert!((k.per_sample / c.per_sample - 0.5).abs() < 1e-9);
+        assert!((k.per_gather_ray / c.per_gather_ray - 0.5).abs() < 1e-9);
+        assert!((k.pass_seconds(&size) - (2.0 * photons + 0.5 * camera)).abs() < 1e-9);
     }
 }
