@@ -14,7 +14,7 @@ S=${SCENES:-$here/../shared/scenes}
 bin=$here/target/release/photongrid
 mkdir -p "$out"
 : > "$out/time_budget.jsonl"
-printf "%-22s %5s %7s %4s %6s %-34s %7s %7s %8s\n" camera T wall ok passes "pass (photons/spp/gather)" ratio block pixel
+printf "%-22s %5s %7s %4s %6s %-50s %7s %7s %8s\n" camera T wall ok passes "passes (photons/spp/gather)" ratio block pixel
 for T in $times; do
   for sc in cornell_glass:0 cornell_area:0 ring_caustic:0 ring_caustic:1 shadow_edges:0 curved_3d:0 \
             pool_caustic:0 pool_caustic:1 shelf_objects:0 shelf_objects:1; do
@@ -35,9 +35,12 @@ b = st.get("budget") or {}
 size = (b.get("plan") or {}).get("size") or {}
 fill = b.get("fill")
 pas = f"{(size.get('photons',0)+size.get('caustic_photons',0))/1e3:.0f}k/{size.get('spp')}/{size.get('gather')}"
+rp = (b.get("replan") or {}).get("plan", {}).get("size")
+if rp and rp != size:
+    pas += f" then {(rp['photons']+rp['caustic_photons'])/1e3:.0f}k/{rp['spp']}/{rp['gather']}"
 if fill:
     pas += f" +fill {(fill['photons']+fill['caustic_photons'])/1e3:.0f}k/{fill['spp']}/{fill['gather']}"
-print(f"{s+'_cam'+c:22s} {T:5.0f} {wall:7.2f} {'yes' if ok else 'NO':>4s} {st['passes']['count']:6d} {pas:34s} "
+print(f"{s+'_cam'+c:22s} {T:5.0f} {wall:7.2f} {'yes' if ok else 'NO':>4s} {st['passes']['count']:6d} {pas:50s} "
       f"{m['mean_lum_ratio']:7.4f} {m['block_rel_rmse']*100:6.2f}% {m['rel_rmse']*100:7.2f}%")
 rec = dict(scene=s, camera=int(c), time=T, wall=wall, within=ok, passes=st["passes"], budget=b,
            seconds=st["seconds"], cpu_seconds=st.get("cpu_seconds"), mean_lum_ratio=m["mean_lum_ratio"],

@@ -126,10 +126,10 @@ pub const MIN_PATHS: usize = 20_000;
 /// With less time than this many requested passes, the first pass is made smaller so that
 /// about this many fit: its prediction comes from the probe, whose sparse photons make the
 /// camera's costs the least certain (it may be off by this factor and still end in time).
-pub const PLANNED_PASSES: f64 = 3.0;
+pub const PLANNED_PASSES: f64 = 1.6;
 /// After the first pass, the costs it measured size the passes for the time left so that
 /// about this many fit.
-pub const REPLANNED_PASSES: f64 = 1.5;
+pub const REPLANNED_PASSES: f64 = 1.25;
 
 /// How the passes of a time-budgeted render are sized, and why.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -254,7 +254,9 @@ pub fn shrink(costs: &Costs, target: f64, requested: PassSize) -> (PassSize, f64
         });
         ((target - camera) / (paths * costs.per_path.max(1e-12))).clamp(lowest, 1.0)
     };
-    let over = |size: PassSize, scale: f64| costs.pass_seconds(&with_scale(size, scale)) > target * (1.0 + 1e-9);
+    // Photon counts are rounded: a pass that fills the target exactly may be over it by a photon.
+    let slack = 2.0 * costs.per_path + 1e-9 * target;
+    let over = |size: PassSize, scale: f64| costs.pass_seconds(&with_scale(size, scale)) > target + slack;
     let mut size = requested;
     let mut scale = fit(&size, floor(PHOTON_FLOOR_SHARE));
     while size.spp > 1 && over(size, scale) {
@@ -407,5 +409,22 @@ mod tests {
         assert!((k.per_sample / c.per_sample - 0.5).abs() < 1e-9);
         assert!((k.per_gather_ray / c.per_gather_ray - 0.5).abs() < 1e-9);
         assert!((k.pass_seconds(&size) - (2.0 * photons + 0.5 * camera)).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_pass_that_fills_the_target_exactly_keeps_its_samples() {
+        // Costs a probe measured on cornell_area: the pass of 2 spp and 24 % of the photons
+        // fills the target to the photon; rounding the photon counts once cut it to 1 spp and
+        // 1 gather ray.
+        let c = Costs {
+            per_pass: 0.012916561,
+            per_path: 2.6802417813333333e-06,
+            per_sample: 3.679861458333333e-06,
+            per_gather_ray: 9.686567447916666e-07,
+            pixels: 307200,
+            probe_seconds: 0.338,
+        };
+        let p = plan(&c, 14.338187185999999, requested(), PLANNED_PASSES);
+        assert_eq!((p.size.spp, p.size.gather), (2, 8), "{p:?}");
     }
 }
