@@ -70,18 +70,12 @@ pub static METHODS: &[MethodPreset] = &[
     MethodPreset {
         name: "single-map-knn",
         description: "one photon map for all light, direct included (kNN)",
-        apply: |s| {
-            classic(s, Method::Knn);
-            s.direct = DirectLighting::Photons;
-        },
+        apply: |s| single_map(s, Method::Knn),
     },
     MethodPreset {
         name: "single-map-adaptive",
         description: "the paper's setup: one photon map, plane-grid adaptive radius",
-        apply: |s| {
-            classic(s, Method::Adaptive);
-            s.direct = DirectLighting::Photons;
-        },
+        apply: |s| single_map(s, Method::Adaptive),
     },
     MethodPreset {
         name: "gather8",
@@ -109,6 +103,12 @@ fn classic(s: &mut Settings, method: Method) {
     s.gather = 0;
     s.caustic_photons = 0;
     s.grid = photongrid::settings::GridMode::Planes;
+}
+
+/// The classic pipeline with one photon map for all light, direct lighting included.
+fn single_map(s: &mut Settings, method: Method) {
+    classic(s, method);
+    s.direct = DirectLighting::Photons;
 }
 
 /// The preset called `name`.
@@ -685,27 +685,7 @@ pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<Summary> {
     let scenes = discover(&opts.dir, &opts.matrix.scenes)?;
     std::fs::create_dir_all(&opts.out).with_context(|| format!("{}: cannot create folder", opts.out.display()))?;
     let json_path = opts.out.join("bench.json");
-    let mut file = if json_path.exists() && opts.resume {
-        let mut f = BenchFile::read(&json_path)?;
-        f.command = opts.command.clone();
-        f.matrix = Some(opts.matrix.clone());
-        f
-    } else {
-        if json_path.exists() && !opts.overwrite {
-            bail!(
-                "{} exists: pass --resume to continue it, or --overwrite to start over",
-                json_path.display()
-            );
-        }
-        BenchFile {
-            format: FORMAT,
-            photongrid: env!("CARGO_PKG_VERSION").to_string(),
-            scenes_dir: opts.dir.clone(),
-            command: opts.command.clone(),
-            matrix: Some(opts.matrix.clone()),
-            runs: Vec::new(),
-        }
-    };
+    let mut file = open_bench_file(opts, &json_path)?;
 
     let keys = opts.matrix.expand();
     let total = keys.len();
@@ -734,20 +714,7 @@ pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<Summary> {
         let scene = photongrid::load(&scene_refs.path)?;
         let load_s = t.elapsed().as_secs_f64();
         let refs = load_refs(scene_refs, w, h)?;
-        let cameras = refs
-            .iter()
-            .map(|r| {
-                scene.cameras.iter().find(|c| c.index == r.index).ok_or_else(|| {
-                    anyhow!(
-                        "{}: no glTF camera {} (the reference refs/{}_cam{}.exr names it)",
-                        scene_refs.path.display(),
-                        r.index,
-                        scene_refs.name,
-                        r.index
-                    )
-                })
-            })
-            .collect::<Result<Vec<_>>>()?;
+        let cameras = reference_cameras(&scene, scene_refs, &refs)?;
         for (n, key, settings, replace) in todo {
             if replace.is_some() {
                 log(&format!(
@@ -759,20 +726,7 @@ pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<Summary> {
                 std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
             }
             let record = run_one(&scene, key, &settings, load_s, &refs, &cameras, images.as_deref())?;
-            let cams: Vec<String> = record
-                .cameras
-                .iter()
-                .map(|c| {
-                    let e = c.primary().block_rel_rmse.map(|v| format!("{:.2} %", v * 100.0));
-                    format!("cam{} {}", c.index, e.unwrap_or_else(|| "n/a".into()))
-                })
-                .collect();
-            log(&format!(
-                "[{n}/{total}] {key}: {:.2} s, {} MB, {}",
-                record.seconds.total,
-                record.peak_memory_bytes.map(|b| b / 1_000_000).unwrap_or(0),
-                cams.join(", ")
-            ));
+            log(&format!("[{n}/{total}] {key}: {}", run_line(&record)));
             match replace {
                 Some(i) => file.runs[i] = record,
                 None => file.runs.push(record),
@@ -786,6 +740,70 @@ pub fn run(opts: &BenchOptions, log: &mut dyn FnMut(&str)) -> Result<Summary> {
     summary.outputs.extend(write_reports(&file, &opts.out)?);
     summary.seconds = start.elapsed().as_secs_f64();
     Ok(summary)
+}
+
+/// `bench.json` to add runs to: the existing one with `--resume`, else a new one (refusing
+/// to replace an existing file without `--overwrite`).
+fn open_bench_file(opts: &BenchOptions, json_path: &Path) -> Result<BenchFile> {
+    if json_path.exists() && opts.resume {
+        let mut f = BenchFile::read(json_path)?;
+        f.command = opts.command.clone();
+        f.matrix = Some(opts.matrix.clone());
+        return Ok(f);
+    }
+    if json_path.exists() && !opts.overwrite {
+        bail!(
+            "{} exists: pass --resume to continue it, or --overwrite to start over",
+            json_path.display()
+        );
+    }
+    Ok(BenchFile {
+        format: FORMAT,
+        photongrid: env!("CARGO_PKG_VERSION").to_string(),
+        scenes_dir: opts.dir.clone(),
+        command: opts.command.clone(),
+        matrix: Some(opts.matrix.clone()),
+        runs: Vec::new(),
+    })
+}
+
+/// The scene's camera for each reference image, by glTF camera index.
+fn reference_cameras<'a>(
+    scene: &'a photongrid::scene::Scene,
+    scene_refs: &SceneRefs,
+    refs: &[LoadedRef],
+) -> Result<Vec<&'a photongrid::scene::Camera>> {
+    refs.iter()
+        .map(|r| {
+            scene.cameras.iter().find(|c| c.index == r.index).ok_or_else(|| {
+                anyhow!(
+                    "{}: no glTF camera {} (the reference refs/{}_cam{}.exr names it)",
+                    scene_refs.path.display(),
+                    r.index,
+                    scene_refs.name,
+                    r.index
+                )
+            })
+        })
+        .collect()
+}
+
+/// One run's log line after its key: seconds, peak memory and each camera's block error.
+fn run_line(record: &RunRecord) -> String {
+    let cams: Vec<String> = record
+        .cameras
+        .iter()
+        .map(|c| {
+            let e = c.primary().block_rel_rmse.map(|v| format!("{:.2} %", v * 100.0));
+            format!("cam{} {}", c.index, e.unwrap_or_else(|| "n/a".into()))
+        })
+        .collect();
+    format!(
+        "{:.2} s, {} MB, {}",
+        record.seconds.total,
+        record.peak_memory_bytes.map(|b| b / 1_000_000).unwrap_or(0),
+        cams.join(", ")
+    )
 }
 
 fn run_one(
@@ -1158,21 +1176,7 @@ fn log_log_svg(
     lines: &[Line],
 ) -> Result<String> {
     use plotters::prelude::*;
-    let pts = || lines.iter().flat_map(|l| l.points.iter());
-    let positive = |v: f64| v.is_finite() && v > 0.0;
-    let xs: Vec<f64> = pts().map(|p| p.0).filter(|&v| positive(v)).collect();
-    let ys: Vec<f64> = pts().flat_map(|p| [p.1, p.2, p.3]).filter(|&v| positive(v)).collect();
-    let range = |v: &[f64]| {
-        let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
-        let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        if lo.is_finite() {
-            log_axis(lo, hi)
-        } else {
-            log_axis(0.1, 1.0)
-        }
-    };
-    let (x0, x1, x_ticks) = range(&xs);
-    let (y0, y1, y_ticks) = range(&ys);
+    let ((x0, x1, x_ticks), (y0, y1, y_ticks)) = log_log_axes(lines);
     let mut svg = String::new();
     {
         let root = SVGBackend::with_string(&mut svg, (800, 560)).into_drawing_area();
@@ -1214,31 +1218,7 @@ fn log_log_svg(
             .draw()
             .map_err(e)?;
         for (i, line) in lines.iter().enumerate() {
-            let c = colour(i);
-            let p: Vec<&(f64, f64, f64, f64)> = line
-                .points
-                .iter()
-                .filter(|p| positive(p.0) && positive(p.1) && positive(p.2) && positive(p.3))
-                .collect();
-            if p.is_empty() {
-                continue;
-            }
-            // Spread over seeds: a band from the min to the max.
-            if p.iter().any(|q| q.3 > q.2) {
-                let band: Vec<(f64, f64)> = p
-                    .iter()
-                    .map(|q| (q.0, q.3))
-                    .chain(p.iter().rev().map(|q| (q.0, q.2)))
-                    .collect();
-                chart
-                    .draw_series(std::iter::once(Polygon::new(band, c.mix(0.15).filled())))
-                    .map_err(e)?;
-            }
-            chart
-                .draw_series(LineSeries::new(p.iter().map(|q| (q.0, q.1)), c.stroke_width(DATA_STROKE)).point_size(4))
-                .map_err(e)?
-                .label(line.label.clone())
-                .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 18, y + 5)], c.filled()));
+            draw_line(&mut chart, colour(i), line).map_err(e)?;
         }
         chart
             .configure_series_labels()
@@ -1251,6 +1231,66 @@ fn log_log_svg(
         root.present().map_err(e)?;
     }
     Ok(svg)
+}
+
+/// Finite and above zero: what a log axis can show.
+fn positive(v: f64) -> bool {
+    v.is_finite() && v > 0.0
+}
+
+/// A log axis: its range and ticks.
+type LogAxis = (f64, f64, Vec<f64>);
+
+/// The x and y axes that hold every positive value of `lines`.
+fn log_log_axes(lines: &[Line]) -> (LogAxis, LogAxis) {
+    let pts = || lines.iter().flat_map(|l| l.points.iter());
+    let xs: Vec<f64> = pts().map(|p| p.0).filter(|&v| positive(v)).collect();
+    let ys: Vec<f64> = pts().flat_map(|p| [p.1, p.2, p.3]).filter(|&v| positive(v)).collect();
+    let range = |v: &[f64]| {
+        let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        if lo.is_finite() {
+            log_axis(lo, hi)
+        } else {
+            log_axis(0.1, 1.0)
+        }
+    };
+    (range(&xs), range(&ys))
+}
+
+/// One line of a log–log chart with its legend entry, and the seeds' spread as a band.
+fn draw_line<DB, CT>(
+    chart: &mut plotters::chart::ChartContext<'_, DB, CT>,
+    c: plotters::style::RGBColor,
+    line: &Line,
+) -> Result<(), plotters::drawing::DrawingAreaErrorKind<DB::ErrorType>>
+where
+    DB: plotters::prelude::DrawingBackend,
+    CT: plotters::coord::CoordTranslate<From = (f64, f64)>,
+{
+    use plotters::prelude::*;
+    let p: Vec<&(f64, f64, f64, f64)> = line
+        .points
+        .iter()
+        .filter(|p| positive(p.0) && positive(p.1) && positive(p.2) && positive(p.3))
+        .collect();
+    if p.is_empty() {
+        return Ok(());
+    }
+    // Spread over seeds: a band from the min to the max.
+    if p.iter().any(|q| q.3 > q.2) {
+        let band: Vec<(f64, f64)> = p
+            .iter()
+            .map(|q| (q.0, q.3))
+            .chain(p.iter().rev().map(|q| (q.0, q.2)))
+            .collect();
+        chart.draw_series(std::iter::once(Polygon::new(band, c.mix(0.15).filled())))?;
+    }
+    chart
+        .draw_series(LineSeries::new(p.iter().map(|q| (q.0, q.1)), c.stroke_width(DATA_STROKE)).point_size(4))?
+        .label(line.label.clone())
+        .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 18, y + 5)], c.filled()));
+    Ok(())
 }
 
 /// `error_vs_time_<scene>_cam<i>.svg`: masked block_rel_rmse (log) against the camera's wall

@@ -476,23 +476,7 @@ fn render(a: RenderArgs) -> Result<()> {
     set_threads(a.threads)?;
     let settings = &a.settings;
     settings.validate().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
-    // The outputs first, before any work: none replaces an input or another output, the right
-    // extensions, folders created, writable.
-    plan_outputs(&a, None)?;
-    paths::check_extension(&a.output, Format::Exr, "--output").map_err(anyhow::Error::msg)?;
-    if let Some(p) = &a.png {
-        paths::check_extension(p, Format::Png, "--png").map_err(anyhow::Error::msg)?;
-    }
-    let patterns = [Some(&a.output), a.png.as_ref(), a.stats.as_ref()];
-    for p in patterns.into_iter().flatten() {
-        // A {camera} in a folder name is known only once the scene is loaded.
-        if !p.parent().is_some_and(|d| d.to_string_lossy().contains("{camera}")) {
-            paths::prepare(&output_for(p, "camera", false)).map_err(anyhow::Error::msg)?;
-        }
-    }
-    if let Some(dir) = &a.dump_grids {
-        paths::prepare(&dir.join("plane000_counts.exr")).map_err(anyhow::Error::msg)?;
-    }
+    check_outputs_before_load(&a)?;
     let stop = stop_on_signals();
     let display = Display::new(a.progress).with_stop(Arc::clone(&stop));
     announce_stop(Arc::clone(&stop), a.progress);
@@ -556,13 +540,58 @@ fn render(a: RenderArgs) -> Result<()> {
     } = pipeline::render(&request, &progress, checkpoint)?;
     report.seconds.load = load_seconds;
     if let (Some(dir), Some(g)) = (&a.dump_grids, grids.paper.as_ref().and_then(|g| g.planes.as_ref())) {
-        std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
-        for (i, (raw, filtered)) in g.raw.iter().zip(&g.filtered).enumerate() {
-            output::write_field_exr(&dir.join(format!("plane{i:03}_counts.exr")), raw)?;
-            output::write_field_exr(&dir.join(format!("plane{i:03}_filtered.exr")), filtered)?;
+        dump_plane_grids(dir, g)?;
+    }
+    write_films(&a, &mut report, &outputs, &films, aovs)?;
+    report.seconds.total = start.elapsed().as_secs_f64();
+    report.cpu_seconds = pipeline::cpu_seconds();
+    print_render_summary(&a, &report);
+    if let Some(path) = &a.stats {
+        output::write_atomic(path, serde_json::to_string_pretty(&report)?.as_bytes())?;
+    }
+    Ok(())
+}
+
+/// The checks on the output paths that need no scene, before any work: none replaces an
+/// input or another output, the right extensions, folders created, writable.
+fn check_outputs_before_load(a: &RenderArgs) -> Result<()> {
+    plan_outputs(a, None)?;
+    paths::check_extension(&a.output, Format::Exr, "--output").map_err(anyhow::Error::msg)?;
+    if let Some(p) = &a.png {
+        paths::check_extension(p, Format::Png, "--png").map_err(anyhow::Error::msg)?;
+    }
+    let patterns = [Some(&a.output), a.png.as_ref(), a.stats.as_ref()];
+    for p in patterns.into_iter().flatten() {
+        // A {camera} in a folder name is known only once the scene is loaded.
+        if !p.parent().is_some_and(|d| d.to_string_lossy().contains("{camera}")) {
+            paths::prepare(&output_for(p, "camera", false)).map_err(anyhow::Error::msg)?;
         }
     }
-    for ((camera, (out, png)), film) in report.cameras.iter_mut().zip(&outputs).zip(&films) {
+    if let Some(dir) = &a.dump_grids {
+        paths::prepare(&dir.join("plane000_counts.exr")).map_err(anyhow::Error::msg)?;
+    }
+    Ok(())
+}
+
+/// `--dump-grids`: each plane's count texture before and after the wavelet step.
+fn dump_plane_grids(dir: &Path, g: &photongrid::grid::PlaneGrids) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
+    for (i, (raw, filtered)) in g.raw.iter().zip(&g.filtered).enumerate() {
+        output::write_field_exr(&dir.join(format!("plane{i:03}_counts.exr")), raw)?;
+        output::write_field_exr(&dir.join(format!("plane{i:03}_filtered.exr")), filtered)?;
+    }
+    Ok(())
+}
+
+/// Writes each camera's EXR (and PNG) and records the paths and the writing time in the report.
+fn write_films(
+    a: &RenderArgs,
+    report: &mut pipeline::RenderReport,
+    outputs: &[(PathBuf, Option<PathBuf>)],
+    films: &[Film],
+    aovs: AovSelection,
+) -> Result<()> {
+    for ((camera, (out, png)), film) in report.cameras.iter_mut().zip(outputs).zip(films) {
         let t = Instant::now();
         output::write_exr(out, film, aovs)?;
         if let Some(p) = png {
@@ -578,14 +607,17 @@ fn render(a: RenderArgs) -> Result<()> {
         }
         camera.output = Some(out.clone());
         camera.png = png.clone();
-        if json_progress {
+        if a.progress == ProgressMode::Json {
             emit_json(
                 &serde_json::json!({"event": "output", "camera": camera.camera, "path": out, "passes": report.passes.count}),
             );
         }
     }
-    report.seconds.total = start.elapsed().as_secs_f64();
-    report.cpu_seconds = pipeline::cpu_seconds();
+    Ok(())
+}
+
+/// The closing line on the terminal, or the `done` event with `--progress json`.
+fn print_render_summary(a: &RenderArgs, report: &pipeline::RenderReport) {
     let n = report.passes.count;
     match a.progress {
         ProgressMode::Auto => {
@@ -625,10 +657,6 @@ fn render(a: RenderArgs) -> Result<()> {
         }
         ProgressMode::Quiet => {}
     }
-    if let Some(path) = &a.stats {
-        output::write_atomic(path, serde_json::to_string_pretty(&report)?.as_bytes())?;
-    }
-    Ok(())
 }
 
 /// The files `render` writes — per camera the EXR and the PNG, and the stats — checked before

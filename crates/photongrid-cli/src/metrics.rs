@@ -298,6 +298,39 @@ fn np_maximum(a: f64, b: f64) -> f64 {
 /// # Panics
 /// If an image violates `data.len() == width * height`.
 pub fn score(image: &Image, reference: &Image, exclude: Option<&[bool]>, block: usize) -> Result<Scores, MetricsError> {
+    check_inputs(image, reference, exclude, block)?;
+    let (sums, blocks) = accumulate(image, reference, exclude, block);
+    let kept = sums.kept;
+
+    // With no kept pixel these are 0/0 = NaN, as in numpy.
+    let kept_f = kept as f64;
+    let mi = sums.li.value() / kept_f;
+    let mr = sums.lr.value() / kept_f;
+    let rgb_mean_ratio: [f64; 3] = std::array::from_fn(|c| {
+        (sums.img[c].value() / kept_f) / py_max(sums.reference[c].value() / kept_f, RGB_MEAN_FLOOR)
+    });
+    // numpy: `if mr` (NaN is truthy there; we choose None when nothing is kept).
+    let mr_usable = kept > 0 && mr != 0.0;
+    let mean_lum_ratio = mr_usable.then(|| mi / mr);
+    let rel_rmse = mr_usable.then(|| (sums.d2.value() / kept_f).sqrt() / mr);
+    let (block_rel_rmse, block_frac_off_10pct) = block_metrics(&blocks, block, mr, mr_usable);
+
+    Ok(Scores {
+        mean_lum_ratio,
+        rgb_mean_ratio,
+        rel_rmse,
+        block,
+        block_rel_rmse,
+        block_frac_off_10pct,
+        nonfinite_pixels: sums.nonfinite,
+        pixels_scored: kept,
+        mean_lum_image: mi,
+        mean_lum_reference: mr,
+    })
+}
+
+/// The errors of [`score`], in the order it documents.
+fn check_inputs(image: &Image, reference: &Image, exclude: Option<&[bool]>, block: usize) -> Result<(), MetricsError> {
     image.check_len("image");
     reference.check_len("reference");
     if (image.width, image.height) != (reference.width, reference.height) {
@@ -306,7 +339,6 @@ pub fn score(image: &Image, reference: &Image, exclude: Option<&[bool]>, block: 
             reference: (reference.width, reference.height),
         });
     }
-    let (w, h) = (image.width, image.height);
     let n = image.data.len();
     if let Some(m) = exclude {
         if m.len() != n {
@@ -319,36 +351,45 @@ pub fn score(image: &Image, reference: &Image, exclude: Option<&[bool]>, block: 
     if block == 0 {
         return Err(MetricsError::BadBlock(block));
     }
+    Ok(())
+}
 
-    // Partial tiles at the right and bottom edges are dropped.
-    let (nbx, nby) = (w / block, h / block);
+/// Whole-image accumulators over the kept pixels.
+#[derive(Default)]
+struct PixelSums {
+    nonfinite: usize,
+    kept: usize,
+    li: Sum,
+    lr: Sum,
+    d2: Sum,
+    img: [Sum; 3],
+    reference: [Sum; 3],
+}
+
+/// One pass over the pixels: the whole-image sums and the per-tile sums (row-major tiles;
+/// partial tiles at the right and bottom edges are dropped).
+fn accumulate(image: &Image, reference: &Image, exclude: Option<&[bool]>, block: usize) -> (PixelSums, Vec<BlockAcc>) {
+    let w = image.width;
+    let (nbx, nby) = (w / block, image.height / block);
     let mut blocks = vec![BlockAcc::default(); nbx * nby];
-
-    let mut nonfinite = 0usize;
-    let mut kept = 0usize;
-    let mut sum_li = Sum::default();
-    let mut sum_lr = Sum::default();
-    let mut sum_d2 = Sum::default();
-    let mut sum_img = [Sum::default(); 3];
-    let mut sum_ref = [Sum::default(); 3];
-
+    let mut sums = PixelSums::default();
     for (i, (&pi, &pr)) in image.data.iter().zip(&reference.data).enumerate() {
         if !pi.iter().all(|v| v.is_finite()) {
-            nonfinite += 1;
+            sums.nonfinite += 1;
         }
         if exclude.is_some_and(|m| m[i]) {
             continue;
         }
         let (pi, pr) = (sanitize(pi), sanitize(pr));
         let (li, lr) = (luminance(pi), luminance(pr));
-        kept += 1;
-        sum_li.add(li);
-        sum_lr.add(lr);
+        sums.kept += 1;
+        sums.li.add(li);
+        sums.lr.add(lr);
         let d = li - lr;
-        sum_d2.add(d * d);
+        sums.d2.add(d * d);
         for c in 0..3 {
-            sum_img[c].add(f64::from(pi[c]));
-            sum_ref[c].add(f64::from(pr[c]));
+            sums.img[c].add(f64::from(pi[c]));
+            sums.reference[c].add(f64::from(pr[c]));
         }
         let (bx, by) = ((i % w) / block, (i / w) / block);
         if bx < nbx && by < nby {
@@ -358,24 +399,17 @@ pub fn score(image: &Image, reference: &Image, exclude: Option<&[bool]>, block: 
             acc.kept += 1;
         }
     }
+    (sums, blocks)
+}
 
-    // With no kept pixel these are 0/0 = NaN, as in numpy.
-    let kept_f = kept as f64;
-    let mi = sum_li.value() / kept_f;
-    let mr = sum_lr.value() / kept_f;
-    let rgb_mean_ratio: [f64; 3] =
-        std::array::from_fn(|c| (sum_img[c].value() / kept_f) / py_max(sum_ref[c].value() / kept_f, RGB_MEAN_FLOOR));
-    // numpy: `if mr` (NaN is truthy there; we choose None when nothing is kept).
-    let mr_usable = kept > 0 && mr != 0.0;
-    let mean_lum_ratio = mr_usable.then(|| mi / mr);
-    let rel_rmse = mr_usable.then(|| (sum_d2.value() / kept_f).sqrt() / mr);
-
-    // Block metrics over full tiles. `area` is exact: block <= w, h here.
+/// `block_rel_rmse` and `block_frac_off_10pct` over the full tiles. `area` is exact: block
+/// <= w, h here.
+fn block_metrics(blocks: &[BlockAcc], block: usize, mr: f64, mr_usable: bool) -> (Option<f64>, Option<f64>) {
     let area = (block as f64) * (block as f64);
     let mut n_full = 0usize;
     let mut n_off = 0usize;
     let mut sum_db2 = Sum::default();
-    for acc in &blocks {
+    for acc in blocks {
         if acc.kept as f64 / area > FULL_BLOCK_FRACTION {
             let bi = acc.li.value() / area;
             let br = acc.lr.value() / area;
@@ -390,19 +424,7 @@ pub fn score(image: &Image, reference: &Image, exclude: Option<&[bool]>, block: 
     }
     let block_rel_rmse = (n_full > 0 && mr_usable).then(|| (sum_db2.value() / n_full as f64).sqrt() / mr);
     let block_frac_off_10pct = (n_full > 0).then(|| n_off as f64 / n_full as f64);
-
-    Ok(Scores {
-        mean_lum_ratio,
-        rgb_mean_ratio,
-        rel_rmse,
-        block,
-        block_rel_rmse,
-        block_frac_off_10pct,
-        nonfinite_pixels: nonfinite,
-        pixels_scored: kept,
-        mean_lum_image: mi,
-        mean_lum_reference: mr,
-    })
+    (block_rel_rmse, block_frac_off_10pct)
 }
 
 /// Turns a mask image into an exclusion mask for [`score`]:

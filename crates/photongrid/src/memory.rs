@@ -243,7 +243,7 @@ fn image_items(items: &mut Items, cameras: &[&Camera], settings: &Settings) {
     let sizes: Vec<(u64, u32, u32)> = cameras
         .iter()
         .map(|c| {
-            let (w, h) = crate::pipeline::resolution(c, settings);
+            let (w, h) = c.resolution(settings.width, settings.height);
             ((w as u64) * (h as u64), w, h)
         })
         .collect();
@@ -413,39 +413,12 @@ pub fn check_footprint(
     })
 }
 
-/// Bytes from `8G`, `512M`, `1.5GiB`, `300k`, `2e9` or `4096` (units of 1024; `B` and `iB`
-/// optional).
-pub fn parse_bytes(v: &str) -> Result<u64, String> {
-    let t = v.trim().replace('_', "");
-    let lower = t.to_ascii_lowercase();
-    let s = lower.trim_end_matches('b').trim_end_matches('i');
-    let (num, unit) = match s.char_indices().last() {
-        Some((i, 'k')) => (&s[..i], 1u64 << 10),
-        Some((i, 'm')) => (&s[..i], 1 << 20),
-        Some((i, 'g')) => (&s[..i], 1 << 30),
-        Some((i, 't')) => (&s[..i], 1 << 40),
-        _ => (s, 1),
-    };
-    let bad = || format!("`{v}` is not a size: use e.g. 8G, 512M, 16GiB or a number of bytes");
-    let x = num.trim().parse::<f64>().map_err(|_| bad())? * unit as f64;
-    if !(x >= 1.0 && x.is_finite() && x < u64::MAX as f64) {
-        return Err(bad());
-    }
-    Ok(x as u64)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
-    fn sizes_parse() {
-        assert_eq!(parse_bytes("8G"), Ok(8 << 30));
-        assert_eq!(parse_bytes("512MiB"), Ok(512 << 20));
-        assert_eq!(parse_bytes("1.5g"), Ok(3 << 29));
-        assert_eq!(parse_bytes("4096"), Ok(4096));
-        assert_eq!(parse_bytes("2k"), Ok(2048));
-        assert!(parse_bytes("x").is_err() && parse_bytes("-1G").is_err() && parse_bytes("0").is_err());
+    fn sizes_print() {
         assert_eq!(human(3 << 29), "1.5 GiB");
     }
 

@@ -930,34 +930,14 @@ fn trace_pass(
     let irradiance = (gather > 0).then(|| {
         let phase = progress.phase("irradiance", 0);
         let _s = tracing::info_span!("irradiance").entered();
-        // A gathered photon's light reaches the camera one bounce later than a photon shown
-        // directly: keep the paths within `max_depth` segments (`Settings::gathered`).
-        let gathered: Vec<Photon> = photons
-            .iter()
-            .filter(|p| settings.gathered(p.depth()))
-            .copied()
-            .collect();
-        // Gather rays that land on a multiscale plane read the pyramids: precompute only
-        // where the rest land.
-        let off_grid: Option<Vec<Photon>> = grids.multiscale.as_ref().map(|g| {
-            photons
-                .iter()
-                .zip(&photon_triangles)
-                .step_by(settings.gather_stride.max(1))
-                .filter(|(p, &t)| settings.gathered(p.depth()) && g.texture_of(t).is_none())
-                .map(|(p, _)| *p)
-                .collect()
-        });
-        let all = PhotonMap::build(gathered, settings.gather_neighbours, scene.surface_area(), max_radius);
-        let cache = match off_grid {
-            Some(sites) => IrradianceCache::build_at(&all, &sites, settings.gather_neighbours, scene.surface_area()),
-            None => IrradianceCache::build(
-                &all,
-                settings.gather_neighbours,
-                settings.gather_stride,
-                scene.surface_area(),
-            ),
-        };
+        let cache = irradiance_cache(
+            scene,
+            settings,
+            &photons,
+            &photon_triangles,
+            grids.multiscale.as_ref(),
+            max_radius,
+        );
         times.irradiance += phase.finish();
         cache
     });
@@ -976,6 +956,46 @@ fn trace_pass(
     };
     times.build += phase.finish();
     PassPhotons { map, stats, irradiance }
+}
+
+/// The irradiance that final gathering reads, precomputed from all photons of the pass that
+/// gathering may show.
+fn irradiance_cache(
+    scene: &Scene,
+    settings: &Settings,
+    photons: &[Photon],
+    photon_triangles: &[u32],
+    multiscale: Option<&MultiscaleGrids>,
+    max_radius: f32,
+) -> IrradianceCache {
+    // A gathered photon's light reaches the camera one bounce later than a photon shown
+    // directly: keep the paths within `max_depth` segments (`Settings::gathered`).
+    let gathered: Vec<Photon> = photons
+        .iter()
+        .filter(|p| settings.gathered(p.depth()))
+        .copied()
+        .collect();
+    // Gather rays that land on a multiscale plane read the pyramids: precompute only
+    // where the rest land.
+    let off_grid: Option<Vec<Photon>> = multiscale.map(|g| {
+        photons
+            .iter()
+            .zip(photon_triangles)
+            .step_by(settings.gather_stride.max(1))
+            .filter(|(p, &t)| settings.gathered(p.depth()) && g.texture_of(t).is_none())
+            .map(|(p, _)| *p)
+            .collect()
+    });
+    let all = PhotonMap::build(gathered, settings.gather_neighbours, scene.surface_area(), max_radius);
+    match off_grid {
+        Some(sites) => IrradianceCache::build_at(&all, &sites, settings.gather_neighbours, scene.surface_area()),
+        None => IrradianceCache::build(
+            &all,
+            settings.gather_neighbours,
+            settings.gather_stride,
+            scene.surface_area(),
+        ),
+    }
 }
 
 /// The photons the camera pass estimates directly (with their triangles, when recorded):
@@ -1002,13 +1022,7 @@ fn shown_photons(settings: &Settings, photons: Vec<Photon>, triangles: Vec<u32>)
 
 /// The resolution a camera renders at under `settings`.
 pub fn resolution(camera: &Camera, settings: &Settings) -> (u32, u32) {
-    let (dw, dh) = camera.default_resolution();
-    match (settings.width, settings.height) {
-        (Some(w), Some(h)) => (w, h),
-        (Some(w), None) => (w, ((w as f32 * dh as f32 / dw as f32).round() as u32).max(1)),
-        (None, Some(h)) => (((h as f32 * dw as f32 / dh as f32).round() as u32).max(1), h),
-        (None, None) => (dw, dh),
-    }
+    camera.resolution(settings.width, settings.height)
 }
 
 /// The camera pass's settings for `camera` in pass `pass`.

@@ -138,7 +138,7 @@ pub struct Settings {
     /// Memory limit of a render (8G, 512M, 16GiB or bytes; default half of the RAM): a render
     /// whose estimate (images, per-sample state, photons, grids) is larger is refused up front,
     /// with the estimate and what to change. Also the scene loader's budget.
-    #[cfg_attr(feature = "cli", arg(long, value_name = "BYTES", value_parser = crate::memory::parse_bytes, help_heading = "Passes and time"))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "BYTES", value_parser = parse_bytes, help_heading = "Passes and time"))]
     #[serde(skip_serializing_if = "Option::is_none", deserialize_with = "bytes::deserialize")]
     pub memory_limit: Option<u64>,
 }
@@ -431,6 +431,27 @@ pub fn parse_count(v: &str) -> Result<usize, String> {
     Ok(x as usize)
 }
 
+/// Bytes from `8G`, `512M`, `1.5GiB`, `300k`, `2e9` or `4096` (units of 1024; `B` and `iB`
+/// optional).
+pub fn parse_bytes(v: &str) -> Result<u64, String> {
+    let t = v.trim().replace('_', "");
+    let lower = t.to_ascii_lowercase();
+    let s = lower.trim_end_matches('b').trim_end_matches('i');
+    let (num, unit) = match s.char_indices().last() {
+        Some((i, 'k')) => (&s[..i], 1u64 << 10),
+        Some((i, 'm')) => (&s[..i], 1 << 20),
+        Some((i, 'g')) => (&s[..i], 1 << 30),
+        Some((i, 't')) => (&s[..i], 1 << 40),
+        _ => (s, 1),
+    };
+    let bad = || format!("`{v}` is not a size: use e.g. 8G, 512M, 16GiB or a number of bytes");
+    let x = num.trim().parse::<f64>().map_err(|_| bad())? * unit as f64;
+    if !(x >= 1.0 && x.is_finite() && x < u64::MAX as f64) {
+        return Err(bad());
+    }
+    Ok(x as u64)
+}
+
 /// Counts in jobs files: a number, or a string `parse_count` reads (`"2M"`).
 mod count {
     use serde::{Deserialize, Deserializer};
@@ -466,9 +487,7 @@ mod bytes {
             None => Ok(None),
             Some(Size::Number(0)) => Err(serde::de::Error::custom("a memory limit must be more than 0 bytes")),
             Some(Size::Number(n)) => Ok(Some(n)),
-            Some(Size::Text(s)) => crate::memory::parse_bytes(&s)
-                .map(Some)
-                .map_err(serde::de::Error::custom),
+            Some(Size::Text(s)) => super::parse_bytes(&s).map(Some).map_err(serde::de::Error::custom),
         }
     }
 }
@@ -488,6 +507,12 @@ mod tests {
         assert_eq!(parse_seconds("90s"), Ok(90.0));
         assert!(parse_seconds("0").is_err());
         assert_eq!(parse_seconds_or_zero("0"), Ok(0.0));
+        assert_eq!(parse_bytes("8G"), Ok(8 << 30));
+        assert_eq!(parse_bytes("512MiB"), Ok(512 << 20));
+        assert_eq!(parse_bytes("1.5g"), Ok(3 << 29));
+        assert_eq!(parse_bytes("4096"), Ok(4096));
+        assert_eq!(parse_bytes("2k"), Ok(2048));
+        assert!(parse_bytes("x").is_err() && parse_bytes("-1G").is_err() && parse_bytes("0").is_err());
     }
 
     #[test]

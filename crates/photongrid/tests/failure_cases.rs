@@ -10,7 +10,6 @@
 //! writes the table to `docs/failure_cases.md`.
 
 use glam::Quat;
-use photongrid::film::Film;
 use photongrid::scene::Scene;
 use photongrid::settings::DirectLighting;
 use photongrid::Settings;
@@ -47,17 +46,6 @@ fn build(tag: &str, g: &Gltf) -> (TempDir, Scene) {
     let path = g.write_glb(dir.path(), &format!("{tag}.glb"));
     let scene = load(&path);
     (dir, scene)
-}
-
-/// Σ film / Σ reference over `pixels`, per film.
-fn ratios(films: &[Film], reference: &[f64], pixels: &[usize]) -> Vec<f64> {
-    let t = sum_truth(reference, pixels);
-    films.iter().map(|f| sum_over(f, pixels) / t).collect()
-}
-
-/// Relative errors Σ film / Σ truth − 1 over `pixels`, per film.
-fn rel_errors(films: &[Film], truth: &[f64], pixels: &[usize]) -> Vec<f64> {
-    ratios(films, truth, pixels).into_iter().map(|r| r - 1.0).collect()
 }
 
 /// Detected planes and whether the triangles of a material are on one.
@@ -181,28 +169,8 @@ fn shadow_edge(report: &mut Report) {
             .map(|film| sum_over(film, &shadow_near) / sum_truth(&unsh, &shadow_near))
             .collect();
         report.add(case, "shadow band 0–10 cm: leak", spec.name, 0.0, &leak, "%");
-        report.add_px(
-            case,
-            "lit band 0–10 cm: rel. error",
-            spec.name,
-            0.0,
-            &rel_errors(f, &truth, &lit_near),
-            "%",
-            f,
-            &truth,
-            &lit_near,
-        );
-        report.add_px(
-            case,
-            "lit band 20–50 cm: rel. error",
-            spec.name,
-            0.0,
-            &rel_errors(f, &truth, &lit_far),
-            "%",
-            f,
-            &truth,
-            &lit_far,
-        );
+        report.add_rel_error(case, "lit band 0–10 cm: rel. error", spec.name, f, &truth, &lit_near);
+        report.add_rel_error(case, "lit band 20–50 cm: rel. error", spec.name, f, &truth, &lit_far);
     }
 }
 
@@ -253,17 +221,7 @@ fn corner(report: &mut Report) {
         for &(a, z) in bands.iter() {
             let px = view.select(&|x, _| x >= a && x < z);
             let metric = format!("{:.0}–{:.0} cm from wall: rel. error", 100.0 * a, 100.0 * z);
-            report.add_px(
-                case,
-                &metric,
-                spec.name,
-                0.0,
-                &rel_errors(f, &truth, &px),
-                "%",
-                f,
-                &truth,
-                &px,
-            );
+            report.add_rel_error(case, &metric, spec.name, f, &truth, &px);
         }
     }
 }
@@ -341,17 +299,7 @@ fn tiny_plane(report: &mut Report) {
     );
     for (m, spec) in METHODS.iter().enumerate() {
         let f = &films[m];
-        report.add_px(
-            case,
-            "quad mean radiance: rel. error",
-            spec.name,
-            0.0,
-            &rel_errors(f, &truth, &on_quad),
-            "%",
-            f,
-            &truth,
-            &on_quad,
-        );
+        report.add_rel_error(case, "quad mean radiance: rel. error", spec.name, f, &truth, &on_quad);
     }
     // Adaptive falls back to kNN on the quad: identical pixels there.
     for s in 0..SEEDS.len() {
@@ -411,17 +359,7 @@ fn grazing_sun(report: &mut Report) {
     );
     for (m, spec) in METHODS.iter().enumerate() {
         let f = &films[m];
-        let r = report.add_px(
-            case,
-            "region mean: rel. error",
-            spec.name,
-            0.0,
-            &rel_errors(f, &truth, &all),
-            "%",
-            f,
-            &truth,
-            &all,
-        );
+        let r = report.add_rel_error(case, "region mean: rel. error", spec.name, f, &truth, &all);
         let noise = r.pixel.unwrap().1;
         if noise > [0.15, 0.08, 0.15, 0.15][m] {
             report.fail(format!(

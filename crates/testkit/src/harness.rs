@@ -325,6 +325,17 @@ pub fn sum_truth(truth: &[f64], pixels: &[usize]) -> f64 {
     pixels.iter().map(|&i| truth[i]).sum()
 }
 
+/// Σ film / Σ reference over `pixels`, per film.
+pub fn ratios(films: &[Film], reference: &[f64], pixels: &[usize]) -> Vec<f64> {
+    let t = sum_truth(reference, pixels);
+    films.iter().map(|f| sum_over(f, pixels) / t).collect()
+}
+
+/// Relative errors Σ film / Σ truth − 1 over `pixels`, per film.
+pub fn rel_errors(films: &[Film], truth: &[f64], pixels: &[usize]) -> Vec<f64> {
+    ratios(films, truth, pixels).into_iter().map(|r| r - 1.0).collect()
+}
+
 /// Per-pixel bias and noise over `pixels`, relative to the mean truth there: the RMS over
 /// pixels of (mean over seeds − truth), and the RMS over pixels of the standard deviation
 /// across seeds. (With n seeds the first includes σ²/n of noise.)
@@ -380,6 +391,23 @@ impl Row {
     pub fn bias(&self) -> f64 {
         self.mean - self.truth
     }
+
+    /// The figures of the tables: truth, mean, bias and σ across seeds in the row's unit, and
+    /// the pixel RMS bias and σ in % (`space` before the sign), empty when not measured.
+    fn cells(&self, space: &str) -> [String; 6] {
+        let (pb, pn) = match self.pixel {
+            Some((b, n)) => (format!("{:.2}{space}%", 100.0 * b), format!("{:.2}{space}%", 100.0 * n)),
+            None => (String::new(), String::new()),
+        };
+        [
+            fmt_value(self.truth, self.unit, false),
+            fmt_value(self.mean, self.unit, false),
+            fmt_value(self.bias(), self.unit, true),
+            fmt_value(self.std, self.unit, false),
+            pb,
+            pn,
+        ]
+    }
 }
 
 /// Rows, notes and failed checks of a run.
@@ -427,21 +455,19 @@ impl Report {
         row
     }
 
-    /// Like [`Report::add`], with the per-pixel bias and noise of `films` over `pixels`.
-    #[allow(clippy::too_many_arguments)]
-    pub fn add_px(
+    /// Record the relative error of `films` over `pixels` against `truth_px` ([`rel_errors`],
+    /// in %, truth 0) with its per-pixel bias and noise; returns the row.
+    pub fn add_rel_error(
         &mut self,
         case: &str,
         metric: &str,
         method: &str,
-        truth: f64,
-        values: &[f64],
-        unit: &'static str,
         films: &[Film],
         truth_px: &[f64],
         pixels: &[usize],
     ) -> Row {
-        let mut row = self.add(case, metric, method, truth, values, unit);
+        let values = rel_errors(films, truth_px, pixels);
+        let mut row = self.add(case, metric, method, 0.0, &values, "%");
         row.pixel = Some(pixel_bias_noise(films, truth_px, pixels));
         *self.rows.last_mut().unwrap() = row.clone();
         row
@@ -560,22 +586,11 @@ impl Report {
                 let _ = writeln!(s, "{}", "-".repeat(119));
                 last = &r.case;
             }
-            let (pb, pn) = match r.pixel {
-                Some((b, n)) => (format!("{:.2}%", 100.0 * b), format!("{:.2}%", 100.0 * n)),
-                None => (String::new(), String::new()),
-            };
+            let [truth, mean, bias, std, pb, pn] = r.cells("");
             let _ = writeln!(
                 s,
-                "{:<12} {:<30} {:<14} {:>10} {:>10} {:>10} {:>9} {:>8} {:>8}",
-                r.case,
-                r.metric,
-                r.method,
-                fmt_value(r.truth, r.unit, false),
-                fmt_value(r.mean, r.unit, false),
-                fmt_value(r.bias(), r.unit, true),
-                fmt_value(r.std, r.unit, false),
-                pb,
-                pn
+                "{:<12} {:<30} {:<14} {truth:>10} {mean:>10} {bias:>10} {std:>9} {pb:>8} {pn:>8}",
+                r.case, r.metric, r.method,
             );
         }
         s
@@ -603,19 +618,11 @@ impl Report {
             );
             let _ = writeln!(s, "|---|---|---:|---:|---:|---:|---:|---:|");
             for r in self.rows.iter().filter(|r| r.case == case) {
-                let (pb, pn) = match r.pixel {
-                    Some((b, n)) => (format!("{:.2} %", 100.0 * b), format!("{:.2} %", 100.0 * n)),
-                    None => ("".into(), "".into()),
-                };
+                let [truth, mean, bias, std, pb, pn] = r.cells(" ");
                 let _ = writeln!(
                     s,
-                    "| {} | {} | {} | {} | {} | {} | {pb} | {pn} |",
-                    r.metric,
-                    r.method,
-                    fmt_value(r.truth, r.unit, false),
-                    fmt_value(r.mean, r.unit, false),
-                    fmt_value(r.bias(), r.unit, true),
-                    fmt_value(r.std, r.unit, false),
+                    "| {} | {} | {truth} | {mean} | {bias} | {std} | {pb} | {pn} |",
+                    r.metric, r.method,
                 );
             }
             let _ = writeln!(s);

@@ -2,7 +2,7 @@
 //! gather ray costs one nearest-point lookup instead of a k-nearest-neighbour estimate.
 
 use super::density::irradiance;
-use super::photon_map::{PhotonMap, NORMAL_AGREEMENT};
+use super::photon_map::{faces, PhotonMap};
 use crate::photon::store::{oct_decode, oct_encode};
 use crate::photon::Photon;
 use crate::spatial::{KnnBuffer, PointGrid};
@@ -71,31 +71,10 @@ impl IrradianceCache {
 
     /// Irradiance at the nearest point on a surface facing the same way (zero if none near).
     pub fn lookup(&self, x: Vec3, normal: Vec3, buf: &mut KnnBuffer) -> Rgb {
-        self.grid.knn(
-            x,
-            1,
-            self.max_radius,
-            |p| p.normal().dot(normal) > NORMAL_AGREEMENT,
-            buf,
-        );
+        self.grid.knn(x, 1, self.max_radius, |p| faces(p.normal(), normal), buf);
         match buf.as_slice().first() {
             Some(&(i, _)) => Rgb::from(self.grid.items()[i as usize].irradiance),
             None => Rgb::ZERO,
         }
-    }
-
-    /// Number of points.
-    pub fn len(&self) -> usize {
-        self.grid.len()
-    }
-
-    /// True if there are no points.
-    pub fn is_empty(&self) -> bool {
-        self.grid.is_empty()
-    }
-
-    /// Approximate memory.
-    pub fn memory_bytes(&self) -> usize {
-        self.grid.memory_bytes()
     }
 }

@@ -57,6 +57,12 @@ pub struct PhotonMap {
     pub max_radius: f32,
 }
 
+/// Whether a point recorded on a surface with unit normal `n` may count for a query on a
+/// surface with unit `normal`: the one test of photon and irradiance lookups.
+pub(crate) fn faces(n: Vec3, normal: Vec3) -> bool {
+    n.dot(normal) > NORMAL_AGREEMENT
+}
+
 impl PhotonMap {
     /// Index `photons` with cells sized for `k` neighbours on `surface_area` m².
     pub fn build(photons: Vec<Photon>, k: usize, surface_area: f32, max_radius: f32) -> Self {
@@ -83,7 +89,7 @@ impl PhotonMap {
     }
 
     fn accepts(&self, p: &Photon, normal: Vec3) -> bool {
-        p.normal().dot(normal) > NORMAL_AGREEMENT
+        faces(p.normal(), normal)
     }
 
     /// All photons, in index order.

@@ -105,20 +105,7 @@ impl Grids {
     pub fn build(scene: &Scene, photons: &[Photon], triangles: &[u32], params: &GridParams) -> Grids {
         let mut choice = Vec::new();
         let mode = params.mode;
-        // Mirrors and glass store no photons: they get no grid and do not count as surface.
-        let receives: Vec<bool> = scene
-            .triangles
-            .iter()
-            .map(|t| scene.materials[t.material as usize].receives_photons())
-            .collect();
-        let total_area = scene
-            .triangles
-            .iter()
-            .zip(&receives)
-            .filter(|(_, r)| **r)
-            .map(|(t, _)| t.area())
-            .sum::<f32>()
-            .max(f32::MIN_POSITIVE);
+        let (receives, total_area) = receivers(scene);
         let plane_set = matches!(mode, GridMode::Auto | GridMode::Planes)
             .then(|| PlaneGrids::detect_receivers(scene, params.resolution));
         let mut on_plane = vec![false; scene.triangles.len()];
@@ -160,30 +147,8 @@ impl Grids {
             g
         });
         let voxels = want_voxels.then(|| {
-            // In auto mode voxels cover only what planes do not.
-            let served: Vec<usize> = (0..scene.triangles.len())
-                .filter(|&t| !on_plane[t] && receives[t])
-                .collect();
-            let tris: Vec<[Vec3; 3]> = served.iter().map(|&t| scene.triangles[t].p).collect();
-            let area: f32 = served.iter().map(|&t| scene.triangles[t].area()).sum();
-            let share = area / total_area;
-            // With no photons yet (`photongrid info`), size for the photons the settings ask for.
-            let expected = if photons.is_empty() {
-                params.photons
-            } else {
-                photons.len()
-            };
-            let n = (expected as f32 * share) as usize;
-            let size = VoxelGrid::suggest_voxel_size(n.max(1), params.neighbours, area, scene.bounds.diagonal());
-            let mut v = VoxelGrid::from_triangles(&tris, size);
-            count_voxels(&mut v, scene, photons, triangles, &on_plane, params);
-            choice.push(format!(
-                "voxel grid: {:.4} m voxels, {} occupied, {:.1} MB, for {:.1} % of the surface",
-                size,
-                v.occupied(),
-                v.memory_bytes() as f64 / 1e6,
-                100.0 * share
-            ));
+            let (v, why) = build_voxels(scene, photons, triangles, params, &on_plane, &receives, total_area);
+            choice.push(why);
             v
         });
         if mode == GridMode::None {
@@ -238,6 +203,63 @@ impl Grids {
         self.planes.as_ref().map(|p| p.memory_bytes()).unwrap_or(0)
             + self.voxels.as_ref().map(|v| v.memory_bytes()).unwrap_or(0)
     }
+}
+
+/// Which triangles receive photons, and their area (at least the smallest positive float).
+/// Mirrors and glass store no photons: they get no grid and do not count as surface.
+fn receivers(scene: &Scene) -> (Vec<bool>, f32) {
+    let receives: Vec<bool> = scene
+        .triangles
+        .iter()
+        .map(|t| scene.materials[t.material as usize].receives_photons())
+        .collect();
+    let total_area = scene
+        .triangles
+        .iter()
+        .zip(&receives)
+        .filter(|(_, r)| **r)
+        .map(|(t, _)| t.area())
+        .sum::<f32>()
+        .max(f32::MIN_POSITIVE);
+    (receives, total_area)
+}
+
+/// The voxel grid over the receiving triangles off the planes, sized for the photons they
+/// are expected to get, with `photons` counted; and the line saying what was built.
+fn build_voxels(
+    scene: &Scene,
+    photons: &[Photon],
+    triangles: &[u32],
+    params: &GridParams,
+    on_plane: &[bool],
+    receives: &[bool],
+    total_area: f32,
+) -> (VoxelGrid, String) {
+    // In auto mode voxels cover only what planes do not.
+    let served: Vec<usize> = (0..scene.triangles.len())
+        .filter(|&t| !on_plane[t] && receives[t])
+        .collect();
+    let tris: Vec<[Vec3; 3]> = served.iter().map(|&t| scene.triangles[t].p).collect();
+    let area: f32 = served.iter().map(|&t| scene.triangles[t].area()).sum();
+    let share = area / total_area;
+    // With no photons yet (`photongrid info`), size for the photons the settings ask for.
+    let expected = if photons.is_empty() {
+        params.photons
+    } else {
+        photons.len()
+    };
+    let n = (expected as f32 * share) as usize;
+    let size = VoxelGrid::suggest_voxel_size(n.max(1), params.neighbours, area, scene.bounds.diagonal());
+    let mut v = VoxelGrid::from_triangles(&tris, size);
+    count_voxels(&mut v, scene, photons, triangles, on_plane, params);
+    let why = format!(
+        "voxel grid: {:.4} m voxels, {} occupied, {:.1} MB, for {:.1} % of the surface",
+        size,
+        v.occupied(),
+        v.memory_bytes() as f64 / 1e6,
+        100.0 * share
+    );
+    (v, why)
 }
 
 /// Count the photons of non-plane triangles into `v` (adding to what it holds), then filter.

@@ -6,7 +6,7 @@
 //! whole mixture at its direction (one-sample balance heuristic), which keeps it unbiased.
 
 use crate::sampling::{self, Distribution, Rng};
-use crate::scene::light::{power_weight, Emission};
+use crate::scene::light::{pick_emitter, Emission};
 use crate::scene::{Light, Scene};
 use glam::Vec3;
 use std::collections::HashMap;
@@ -96,30 +96,13 @@ impl SpecularTargets {
     /// restricted to the targets as expectation.
     pub fn emit(&self, light: &Light, rng: &mut Rng) -> Option<Emission> {
         match light {
-            Light::Point {
-                position, intensity, ..
-            } => {
+            Light::Point { position, .. } | Light::Spot { position, .. } => {
                 let (d, pdf) = self.sample_cones(*position, rng)?;
+                let intensity = light.intensity_towards(d)?;
                 Some(Emission {
                     origin: *position,
                     direction: d,
-                    flux: *intensity / pdf,
-                })
-            }
-            Light::Spot {
-                position,
-                direction,
-                intensity,
-                cos_outer,
-                blend,
-                ..
-            } => {
-                let (d, pdf) = self.sample_cones(*position, rng)?;
-                let mask = crate::scene::units::spot_mask(d.dot(*direction), *cos_outer, *blend);
-                (mask > 0.0).then(|| Emission {
-                    origin: *position,
-                    direction: d,
-                    flux: *intensity * mask / pdf,
+                    flux: intensity / pdf,
                 })
             }
             Light::Directional {
@@ -156,11 +139,8 @@ impl SpecularTargets {
                 })
             }
             Light::Emissive { triangles, cdf, .. } => {
-                let i = cdf.sample(rng.uniform());
-                let tri = &triangles[i];
-                let p_tri = cdf.pmf_of(power_weight(tri.power()));
-                let (b1, b2) = sampling::uniform_triangle(rng.uniform2());
-                let origin = tri.p0 + tri.e1 * b1 + tri.e2 * b2;
+                let (tri, p_tri) = pick_emitter(triangles, cdf, rng.uniform());
+                let origin = tri.point(rng.uniform2());
                 let (d, pdf) = self.sample_cones(origin, rng)?;
                 let cos = tri.normal.dot(d);
                 if cos <= 0.0 && !tri.double_sided {

@@ -43,6 +43,19 @@ enum PassKind {
     Caustic,
 }
 
+impl PassKind {
+    /// Whether the pass stores a photon of `kind` at a diffuse hit.
+    fn stores(self, kind: PhotonKind, store_direct: bool) -> bool {
+        match (self, kind) {
+            (PassKind::Caustic, PhotonKind::Caustic) => true,
+            (PassKind::Caustic, _) => false,
+            (PassKind::Global { store_caustic }, PhotonKind::Caustic) => store_caustic,
+            (PassKind::Global { .. }, PhotonKind::Direct) => store_direct,
+            (PassKind::Global { .. }, PhotonKind::Indirect) => true,
+        }
+    }
+}
+
 struct Pass {
     kind: PassKind,
     stream: u64,
@@ -230,18 +243,6 @@ impl Out {
     }
 }
 
-/// Whether a photon of `kind` reaching a surface that stores photons is stored by `pass`: each
-/// kind belongs to exactly one pass.
-fn stores(pass: PassKind, kind: PhotonKind, settings: &TraceSettings) -> bool {
-    match (pass, kind) {
-        (PassKind::Caustic, PhotonKind::Caustic) => true,
-        (PassKind::Caustic, _) => false,
-        (PassKind::Global { store_caustic }, PhotonKind::Caustic) => store_caustic,
-        (PassKind::Global { .. }, PhotonKind::Direct) => settings.store_direct,
-        (PassKind::Global { .. }, PhotonKind::Indirect) => true,
-    }
-}
-
 /// A photon (`power`, `kind`) at a glTF surface: stored if the surface has a lobe rendered from
 /// photons, then continued by sampling the BSDF with Russian roulette. Returns the next origin,
 /// direction, power and kind, or None where the path ends.
@@ -257,7 +258,7 @@ fn gltf_step(
     out: &mut Out,
 ) -> Option<(Vec3, Vec3, Rgb, PhotonKind)> {
     let (stored, s) = bsdf::gltf_photon_step(scene, m, dir, sp, distance, rng);
-    if stored && stores(pass, kind, settings) {
+    if stored && pass.stores(kind, settings.store_direct) {
         out.store(sp, dir, power, kind, depth, rng);
     }
     let s = s?;
@@ -304,7 +305,7 @@ fn trace_path(
                 if albedo.max_element() <= 0.0 {
                     return;
                 }
-                if stores(pass, kind, settings) {
+                if pass.stores(kind, settings.store_direct) {
                     out.store(&sp, dir, power, kind, depth, rng);
                 }
                 if pass == PassKind::Caustic {
@@ -339,16 +340,10 @@ fn trace_path(
                 let Some(c) = bsdf::adjoint_shading_correction(-dir, s.direction, sp.facing_normal, s.normal) else {
                     return;
                 };
-                // Russian roulette where the weight is below one keeps the power nearly constant.
-                let q = s.weight.max_element().min(1.0);
-                if q < 1.0 {
-                    if rng.uniform() >= q {
-                        return;
-                    }
-                    power *= s.weight / q * c;
-                } else {
-                    power *= s.weight * c;
-                }
+                let Some(w) = specular_roulette(s.weight, rng) else {
+                    return;
+                };
+                power *= w * c;
                 dir = s.direction;
                 origin = sp.offset(dir);
                 if kind == PhotonKind::Direct {
@@ -359,5 +354,20 @@ fn trace_path(
         if power.max_element() <= 0.0 || !power.is_finite() {
             return;
         }
+    }
+}
+
+/// Russian roulette where a specular weight is below one keeps the power nearly constant:
+/// the factor to apply to the power, or None when the path ends. A random number is drawn
+/// only when the weight is below one.
+fn specular_roulette(weight: Rgb, rng: &mut Rng) -> Option<Rgb> {
+    let q = weight.max_element().min(1.0);
+    if q < 1.0 {
+        if rng.uniform() >= q {
+            return None;
+        }
+        Some(weight / q)
+    } else {
+        Some(weight)
     }
 }

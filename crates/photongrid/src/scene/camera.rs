@@ -49,6 +49,18 @@ impl Camera {
         (((480.0 * aspect).round() as u32).max(1), 480)
     }
 
+    /// The resolution the camera renders at with the width and height asked for, if any: a
+    /// missing side follows the other at the default aspect.
+    pub fn resolution(&self, width: Option<u32>, height: Option<u32>) -> (u32, u32) {
+        let (dw, dh) = self.default_resolution();
+        match (width, height) {
+            (Some(w), Some(h)) => (w, h),
+            (Some(w), None) => (w, ((w as f32 * dh as f32 / dw as f32).round() as u32).max(1)),
+            (None, Some(h)) => (((h as f32 * dw as f32 / dh as f32).round() as u32).max(1), h),
+            (None, None) => (dw, dh),
+        }
+    }
+
     /// The unit viewing direction (the camera's −Z axis in the world).
     pub fn forward(&self) -> Vec3 {
         self.to_world.transform_vector3(Vec3::NEG_Z).normalize()

@@ -42,7 +42,8 @@ impl EmitterTriangle {
         self.radiance * units::lambert_emitter_flux(1.0, self.area) * self.sides()
     }
 
-    fn point(&self, u: Vec2) -> Vec3 {
+    /// The point of the triangle for the uniform pair `u` (uniform by area).
+    pub(crate) fn point(&self, u: Vec2) -> Vec3 {
         let (b1, b2) = sampling::uniform_triangle(u);
         self.p0 + self.e1 * b1 + self.e2 * b2
     }
@@ -138,6 +139,18 @@ pub struct Emission {
 /// Luminance-like scalar used to share photons between lights.
 pub fn power_weight(p: Rgb) -> f32 {
     (p.x + p.y + p.z) / 3.0
+}
+
+/// The emitting triangle for the uniform `u`, chosen in proportion to its power, with the
+/// probability of that choice: the one triangle choice of photon emission, shadow rays and
+/// the caustic pass.
+pub(crate) fn pick_emitter<'a>(
+    triangles: &'a [EmitterTriangle],
+    cdf: &Distribution,
+    u: f32,
+) -> (&'a EmitterTriangle, f32) {
+    let t = &triangles[cdf.sample(u)];
+    (t, cdf.pmf_of(power_weight(t.power())))
 }
 
 impl Light {
@@ -260,9 +273,7 @@ impl Light {
                 }
             }
             Light::Emissive { triangles, cdf, .. } => {
-                let i = cdf.sample(rng.uniform());
-                let t = &triangles[i];
-                let pdf = cdf.pmf_of(power_weight(t.power()));
+                let (t, pdf) = pick_emitter(triangles, cdf, rng.uniform());
                 let mut n = t.normal;
                 if t.double_sided && rng.uniform() < 0.5 {
                     n = -n;
@@ -278,40 +289,41 @@ impl Light {
         }
     }
 
-    /// Sample the light as seen from `x` (for a shadow ray).
-    pub fn incident(&self, x: Vec3, rng: &mut Rng) -> Option<Incident> {
+    /// Radiant intensity of a point or spot light in the unit direction `d` leaving it: the
+    /// one place the spot's cone applies. None outside the cone, and for lights with area or
+    /// at infinity.
+    pub(crate) fn intensity_towards(&self, d: Vec3) -> Option<Rgb> {
         match self {
-            Light::Point {
-                position, intensity, ..
-            } => {
-                let d = *position - x;
-                let dist2 = d.length_squared();
-                (dist2 > 0.0).then(|| Incident {
-                    wi: d / dist2.sqrt(),
-                    distance: dist2.sqrt(),
-                    irradiance: *intensity / dist2,
-                    pdf: 0.0,
-                })
-            }
+            Light::Point { intensity, .. } => Some(*intensity),
             Light::Spot {
-                position,
                 direction,
                 intensity,
                 cos_outer,
                 blend,
                 ..
             } => {
+                let mask = units::spot_mask(d.dot(*direction), *cos_outer, *blend);
+                (mask > 0.0).then(|| *intensity * mask)
+            }
+            Light::Directional { .. } | Light::Emissive { .. } => None,
+        }
+    }
+
+    /// Sample the light as seen from `x` (for a shadow ray).
+    pub fn incident(&self, x: Vec3, rng: &mut Rng) -> Option<Incident> {
+        match self {
+            Light::Point { position, .. } | Light::Spot { position, .. } => {
                 let d = *position - x;
                 let dist2 = d.length_squared();
-                if dist2 <= 0.0 {
+                if !(dist2 > 0.0) {
                     return None;
                 }
                 let wi = d / dist2.sqrt();
-                let mask = units::spot_mask((-wi).dot(*direction), *cos_outer, *blend);
-                (mask > 0.0).then(|| Incident {
+                let intensity = self.intensity_towards(-wi)?;
+                Some(Incident {
                     wi,
                     distance: dist2.sqrt(),
-                    irradiance: *intensity * mask / dist2,
+                    irradiance: intensity / dist2,
                     pdf: 0.0,
                 })
             }
@@ -324,9 +336,7 @@ impl Light {
                 pdf: 0.0,
             }),
             Light::Emissive { triangles, cdf, .. } => {
-                let i = cdf.sample(rng.uniform());
-                let t = &triangles[i];
-                let pdf_tri = cdf.pmf_of(power_weight(t.power()));
+                let (t, pdf_tri) = pick_emitter(triangles, cdf, rng.uniform());
                 let p = t.point(rng.uniform2());
                 let d = p - x;
                 let dist2 = d.length_squared();

@@ -1,8 +1,7 @@
 //! glTF cameras → [`Camera`]: the projection from the camera object, the placement from the
 //! node that carries it.
 
-use super::meshes::MAX_COORDINATE;
-use super::{LoadError, Loader};
+use super::{LoadError, Loader, MAX_COORDINATE};
 use crate::scene::{camera, Camera, Projection};
 use glam::{Mat4, Vec3};
 

@@ -1,8 +1,7 @@
 //! Lights: KHR_lights_punctual (point, spot, sun) in photometric units → radiometric
 //! [`Light`]s, and the emissive triangles gathered into one area light.
 
-use super::meshes::MAX_COORDINATE;
-use super::{LoadError, Loader};
+use super::{LoadError, Loader, MAX_COORDINATE};
 use crate::scene::light::EmitterTriangle;
 use crate::scene::{units, Bounds, Light, Material, Texture, Triangle};
 use crate::Rgb;

@@ -74,6 +74,15 @@ fn transform_matrix(offset: [f32; 2], rotation: f32, scale: [f32; 2]) -> [[f32; 
     ]
 }
 
+/// The material being loaded: how messages name it, and where its textures are read from
+/// and kept.
+struct MaterialCx<'a, 'i> {
+    element: String,
+    name: String,
+    inputs: &'a Inputs<'i>,
+    textures: &'a mut Textures,
+}
+
 impl Loader<'_> {
     /// All materials of the file, in order, and the textures they use.
     pub(super) fn materials(&mut self, inputs: &Inputs) -> Result<(Vec<Material>, Vec<Texture>), LoadError> {
@@ -105,93 +114,53 @@ impl Loader<'_> {
         let index = m.index().unwrap_or(0);
         let element = format!("materials[{index}]");
         let name = m.name().map(str::to_string).unwrap_or_else(|| element.clone());
-        let pbr = m.pbr_metallic_roughness();
-        let base = pbr.base_color_factor();
+        let cx = &mut MaterialCx {
+            element,
+            name,
+            inputs,
+            textures,
+        };
+        let base = m.pbr_metallic_roughness().base_color_factor();
         let base_rgb = Rgb::new(base[0], base[1], base[2]);
         if !base_rgb.is_finite() || base_rgb.min_element() < 0.0 {
-            return Err(self.invalid(&element, "baseColorFactor must be finite and non-negative"));
+            return Err(self.invalid(&cx.element, "baseColorFactor must be finite and non-negative"));
         }
-        let emission = units::emission_radiance(m.emissive_factor(), m.emissive_strength());
-        if !emission.is_finite() || emission.min_element() < 0.0 {
-            return Err(self.invalid(&element, "emissive factor × strength must be finite and non-negative"));
-        }
-        if emission.max_element() > MAX_RADIANCE {
-            return Err(self.invalid(
-                &element,
-                format!(
-                    "emissive factor × strength is {:e} W/(m²·sr), more than the {MAX_RADIANCE:e} the renderer's 32-bit sums can carry; lower the emission strength",
-                    emission.max_element()
-                ),
-            ));
-        }
+        let emission = self.emission(m, &cx.element)?;
         if m.occlusion_texture().is_some() {
-            let what = format!("{element} '{name}': occlusion texture ignored (light transport gives occlusion)");
+            let what = format!(
+                "{} '{}': occlusion texture ignored (light transport gives occlusion)",
+                cx.element, cx.name
+            );
             self.report.ignored.push(what);
         }
         let emission_texture = match m.emissive_texture() {
             Some(info) if emission.max_element() > 0.0 => {
                 self.approximated(
-                    &element,
-                    &name,
+                    &cx.element,
+                    &cx.name,
                     "emissive texture: seen by the camera as is; lights the scene with its mean over each triangle",
                 );
-                Some(self.texture_ref(&info, true, &element, &name, inputs, textures)?)
+                Some(self.texture_ref(&info, true, cx)?)
             }
             _ => None,
         };
-        let normal_map = match m.normal_texture() {
-            Some(n) => {
-                if n.tex_coord() != 0 {
-                    self.approximated(&element, &name, "normal texture uses TEXCOORD_1+: read with TEXCOORD_0");
-                }
-                let texture = n.texture();
-                let scale = n.scale();
-                if !scale.is_finite() {
-                    return Err(self.invalid(&element, "normalTexture.scale must be finite"));
-                }
-                Some(NormalMap {
-                    texture: self.texture_of(&texture, None, false, inputs, textures)?,
-                    scale,
-                })
-            }
-            None => None,
-        };
-        let (alpha_mode, alpha_texture) = match m.alpha_mode() {
-            gltf::material::AlphaMode::Opaque => (AlphaMode::Opaque, None),
-            mode => {
-                let cutoff = m.alpha_cutoff().unwrap_or(0.5);
-                let mode = if mode == gltf::material::AlphaMode::Mask {
-                    AlphaMode::Mask { cutoff }
-                } else {
-                    self.approximated(
-                        &element,
-                        &name,
-                        "alpha BLEND rendered as stochastic coverage (shadows attenuated by 1 − alpha)",
-                    );
-                    AlphaMode::Blend
-                };
-                let texture = match pbr.base_color_texture() {
-                    Some(info) => Some(self.texture_ref(&info, true, &element, &name, inputs, textures)?),
-                    None => None,
-                };
-                (mode, texture)
-            }
-        };
+        let normal_map = self.normal_map(m, cx)?;
+        let (alpha_mode, alpha_texture) = self.alpha(m, cx)?;
         if !m.double_sided() {
             self.approximated(
-                &element,
-                &name,
+                &cx.element,
+                &cx.name,
                 "single-sided: back faces scatter light as the front faces (only emission is one-sided)",
             );
         }
-        let surface = self.surface(m, base_rgb, &element, &name, inputs, textures)?;
+        let surface = self.surface(m, base_rgb, cx)?;
         if let Surface::Lambert { albedo, .. } = &surface {
             if albedo.max_element() > 1.0 {
-                self.approximated(&element, &name, "albedo > 1 reflects more than it receives");
+                self.approximated(&cx.element, &cx.name, "albedo > 1 reflects more than it receives");
             }
         }
         Ok(Material {
-            name,
+            name: std::mem::take(&mut cx.name),
             surface,
             emission,
             emission_texture,
@@ -203,18 +172,76 @@ impl Loader<'_> {
         })
     }
 
+    /// The emitted radiance (factor × strength), refused when negative, not finite or beyond
+    /// what the renderer's sums can carry.
+    fn emission(&self, m: &gltf::Material, element: &str) -> Result<Rgb, LoadError> {
+        let emission = units::emission_radiance(m.emissive_factor(), m.emissive_strength());
+        if !emission.is_finite() || emission.min_element() < 0.0 {
+            return Err(self.invalid(element, "emissive factor × strength must be finite and non-negative"));
+        }
+        if emission.max_element() > MAX_RADIANCE {
+            return Err(self.invalid(
+                element,
+                format!(
+                    "emissive factor × strength is {:e} W/(m²·sr), more than the {MAX_RADIANCE:e} the renderer's 32-bit sums can carry; lower the emission strength",
+                    emission.max_element()
+                ),
+            ));
+        }
+        Ok(emission)
+    }
+
+    /// The normal texture and its scale, if any.
+    fn normal_map(&mut self, m: &gltf::Material, cx: &mut MaterialCx) -> Result<Option<NormalMap>, LoadError> {
+        let Some(n) = m.normal_texture() else {
+            return Ok(None);
+        };
+        if n.tex_coord() != 0 {
+            self.approximated(
+                &cx.element,
+                &cx.name,
+                "normal texture uses TEXCOORD_1+: read with TEXCOORD_0",
+            );
+        }
+        let texture = n.texture();
+        let scale = n.scale();
+        if !scale.is_finite() {
+            return Err(self.invalid(&cx.element, "normalTexture.scale must be finite"));
+        }
+        Ok(Some(NormalMap {
+            texture: self.texture_of(&texture, None, false, cx.inputs, cx.textures)?,
+            scale,
+        }))
+    }
+
+    /// The alpha mode, and the base colour texture whose alpha it reads (unless opaque).
+    fn alpha(&mut self, m: &gltf::Material, cx: &mut MaterialCx) -> Result<(AlphaMode, Option<TextureRef>), LoadError> {
+        let mode = match m.alpha_mode() {
+            gltf::material::AlphaMode::Opaque => return Ok((AlphaMode::Opaque, None)),
+            gltf::material::AlphaMode::Mask => AlphaMode::Mask {
+                cutoff: m.alpha_cutoff().unwrap_or(0.5),
+            },
+            gltf::material::AlphaMode::Blend => {
+                self.approximated(
+                    &cx.element,
+                    &cx.name,
+                    "alpha BLEND rendered as stochastic coverage (shadows attenuated by 1 − alpha)",
+                );
+                AlphaMode::Blend
+            }
+        };
+        let texture = match m.pbr_metallic_roughness().base_color_texture() {
+            Some(info) => Some(self.texture_ref(&info, true, cx)?),
+            None => None,
+        };
+        Ok((mode, texture))
+    }
+
     /// Lambert, mirror or smooth glass where the material is exactly that, else the glTF
     /// metallic-roughness BSDF.
-    fn surface(
-        &mut self,
-        m: &gltf::Material,
-        base_rgb: Rgb,
-        element: &str,
-        name: &str,
-        inputs: &Inputs,
-        textures: &mut Textures,
-    ) -> Result<Surface, LoadError> {
-        let mr = self.metallic_roughness(m, base_rgb, element, name, inputs, textures)?;
+    fn surface(&mut self, m: &gltf::Material, base_rgb: Rgb, cx: &mut MaterialCx) -> Result<Surface, LoadError> {
+        let mr = self.metallic_roughness(m, base_rgb, cx)?;
+        let (element, name) = (cx.element.as_str(), cx.name.as_str());
         let plain = mr.base_color_texture.is_none() && mr.metallic_roughness_texture.is_none();
         let opaque = mr.transmission <= 0.0 && mr.transmission_texture.is_none();
         if !opaque {
@@ -257,33 +284,30 @@ impl Loader<'_> {
         &mut self,
         m: &gltf::Material,
         base_rgb: Rgb,
-        element: &str,
-        name: &str,
-        inputs: &Inputs,
-        textures: &mut Textures,
+        cx: &mut MaterialCx,
     ) -> Result<MetallicRoughness, LoadError> {
         let pbr = m.pbr_metallic_roughness();
         let unit = |v: f32| if v.is_finite() { v.clamp(0.0, 1.0) } else { 0.0 };
-        let mut tex = |this: &mut Self, info: Option<gltf::texture::Info>, srgb: bool| match info {
-            Some(i) => this.texture_ref(&i, srgb, element, name, inputs, textures).map(Some),
+        let tex = |this: &mut Self, info: Option<gltf::texture::Info>, srgb: bool, cx: &mut MaterialCx| match info {
+            Some(i) => this.texture_ref(&i, srgb, cx).map(Some),
             None => Ok(None),
         };
-        let base_color_texture = tex(self, pbr.base_color_texture(), true)?;
-        let metallic_roughness_texture = tex(self, pbr.metallic_roughness_texture(), false)?;
+        let base_color_texture = tex(self, pbr.base_color_texture(), true, cx)?;
+        let metallic_roughness_texture = tex(self, pbr.metallic_roughness_texture(), false, cx)?;
         let (specular, specular_texture, specular_color, specular_color_texture) = match m.specular() {
             Some(s) => {
                 let color = Rgb::from(s.specular_color_factor());
                 if !color.is_finite() || color.min_element() < 0.0 {
                     return Err(self.invalid(
-                        element,
+                        &cx.element,
                         "KHR_materials_specular: specularColorFactor must be finite and non-negative",
                     ));
                 }
                 (
                     unit(s.specular_factor()),
-                    tex(self, s.specular_texture(), false)?,
+                    tex(self, s.specular_texture(), false, cx)?,
                     color,
-                    tex(self, s.specular_color_texture(), true)?,
+                    tex(self, s.specular_color_texture(), true, cx)?,
                 )
             }
             None => (1.0, None, Rgb::ONE, None),
@@ -291,13 +315,13 @@ impl Loader<'_> {
         let (transmission, transmission_texture) = match m.transmission() {
             Some(t) => (
                 unit(t.transmission_factor()),
-                tex(self, t.transmission_texture(), false)?,
+                tex(self, t.transmission_texture(), false, cx)?,
             ),
             None => (0.0, None),
         };
         let ior = m.ior().unwrap_or(1.5);
         if !(ior.is_finite() && ior >= 1.0) {
-            return Err(self.invalid(element, format!("KHR_materials_ior: ior {ior} must be ≥ 1")));
+            return Err(self.invalid(&cx.element, format!("KHR_materials_ior: ior {ior} must be ≥ 1")));
         }
         let absorption = m.volume().and_then(|v| {
             let d = v.attenuation_distance();
@@ -326,11 +350,9 @@ impl Loader<'_> {
         &mut self,
         info: &gltf::texture::Info,
         srgb: bool,
-        element: &str,
-        name: &str,
-        inputs: &Inputs,
-        textures: &mut Textures,
+        cx: &mut MaterialCx,
     ) -> Result<TextureRef, LoadError> {
+        let (element, name) = (cx.element.as_str(), cx.name.as_str());
         if info.tex_coord() != 0 {
             self.approximated(element, name, "a texture uses TEXCOORD_1+: read with TEXCOORD_0");
         }
@@ -341,7 +363,7 @@ impl Loader<'_> {
             transform_matrix(t.offset(), t.rotation(), t.scale())
         });
         let transform = transform.filter(|m| m.iter().flatten().all(|v| v.is_finite()));
-        self.texture_of(&info.texture(), transform, srgb, inputs, textures)
+        self.texture_of(&info.texture(), transform, srgb, cx.inputs, cx.textures)
     }
 
     fn texture_of(

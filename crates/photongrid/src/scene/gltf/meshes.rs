@@ -2,14 +2,10 @@
 //! [`Triangle`]s; cameras and punctual lights are collected on the way.
 
 use super::lights::{light_of, PunctualKind};
-use super::{Inputs, LoadError, Loader};
+use super::{Inputs, LoadError, Loader, MAX_COORDINATE};
 use crate::scene::{Camera, Material, Triangle};
 use glam::{Mat3, Mat4, Vec2, Vec3, Vec4};
 use gltf::mesh::Mode;
-
-/// Largest coordinate magnitude accepted after the node transforms, in metres: the BVH builder
-/// fails beyond about 1e19, and the grids need headroom above the scene's size.
-pub(super) const MAX_COORDINATE: f32 = 1e18;
 
 /// What the walk over the node hierarchy found.
 pub(super) struct NodeContent {
@@ -297,16 +293,7 @@ impl Loader<'_> {
         let mut placed = Vec::with_capacity(tris.len());
         let normal_matrix = Mat3::from_mat4(world).inverse().transpose();
         let flip = Mat3::from_mat4(world).determinant() < 0.0;
-        let world_p: Vec<Vec3> = v.positions.iter().map(|p| world.transform_point3(*p)).collect();
-        if let Some(i) = world_p.iter().position(|p| !(p.abs().max_element() < MAX_COORDINATE)) {
-            return Err(self.invalid(
-                format!("{} → {element}", instance.describe()),
-                format!(
-                    "POSITION[{i}] lies at {} after the node transforms: coordinates must stay below {MAX_COORDINATE:e} in magnitude; scale the scene down (or check the node's scale)",
-                    world_p[i]
-                ),
-            ));
-        }
+        let world_p = self.world_positions(v, instance, element)?;
         let world_n: Option<Vec<Vec3>> = v
             .normals
             .as_ref()
@@ -337,18 +324,7 @@ impl Loader<'_> {
                 continue;
             }
             let ng = cross / len;
-            let nrm = match &world_n {
-                Some(ns) => t.map(|i| {
-                    let n = ns[i as usize];
-                    // A zero or wild normal falls back to the geometric one.
-                    if n.is_finite() && n.length_squared() > 0.5 {
-                        n
-                    } else {
-                        ng
-                    }
-                }),
-                None => [ng; 3],
-            };
+            let nrm = corner_normals(world_n.as_deref(), t, ng);
             let uv = match &v.uvs {
                 Some(u) => t.map(|i| u.get(i as usize).copied().unwrap_or(Vec2::ZERO)),
                 None => [Vec2::ZERO; 3],
@@ -368,6 +344,39 @@ impl Loader<'_> {
             ));
         }
         Ok(placed)
+    }
+
+    /// The primitive's positions in world space, refused beyond [`MAX_COORDINATE`].
+    fn world_positions(&self, v: &Vertices, instance: &Instance, element: &str) -> Result<Vec<Vec3>, LoadError> {
+        let world = instance.world;
+        let world_p: Vec<Vec3> = v.positions.iter().map(|p| world.transform_point3(*p)).collect();
+        if let Some(i) = world_p.iter().position(|p| !(p.abs().max_element() < MAX_COORDINATE)) {
+            return Err(self.invalid(
+                format!("{} → {element}", instance.describe()),
+                format!(
+                    "POSITION[{i}] lies at {} after the node transforms: coordinates must stay below {MAX_COORDINATE:e} in magnitude; scale the scene down (or check the node's scale)",
+                    world_p[i]
+                ),
+            ));
+        }
+        Ok(world_p)
+    }
+}
+
+/// The shading normals at a triangle's corners: the file's (in world space) where usable,
+/// else the geometric normal `ng`.
+fn corner_normals(world_n: Option<&[Vec3]>, t: [u32; 3], ng: Vec3) -> [Vec3; 3] {
+    match world_n {
+        Some(ns) => t.map(|i| {
+            let n = ns[i as usize];
+            // A zero or wild normal falls back to the geometric one.
+            if n.is_finite() && n.length_squared() > 0.5 {
+                n
+            } else {
+                ng
+            }
+        }),
+        None => [ng; 3],
     }
 }
 

@@ -30,6 +30,11 @@ use budget::Budget;
 use std::path::{Path, PathBuf};
 use uris::Sources;
 
+/// Largest coordinate magnitude accepted after the node transforms (meshes, lights, cameras),
+/// in metres: the BVH builder fails beyond about 1e19, and the grids need headroom above the
+/// scene's size.
+const MAX_COORDINATE: f32 = 1e18;
+
 /// Why a scene could not be loaded.
 #[derive(Debug, thiserror::Error)]
 pub enum LoadError {
