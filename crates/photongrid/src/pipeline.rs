@@ -14,7 +14,7 @@ use crate::photon::{trace_photons, Photon, PhotonKind, PhotonStats, TraceSetting
 use crate::progress::Progress;
 use crate::render::budget::{corrected, plan, Costs, PassSize, Plan, PLANNED_PASSES, REPLANNED_PASSES};
 use crate::render::progressive::{Accumulator, Budget, Stop};
-use crate::render::{PhotonData, RenderSettings};
+use crate::render::{CameraPass, PhotonData, RenderSettings};
 use crate::sampling::pass_seed;
 use crate::scene::{Camera, Scene};
 use crate::settings::{DirectLighting, Settings, SettingsError};
@@ -749,7 +749,14 @@ fn probe_costs(
         for gather in [0, probe.gather] {
             let t = Instant::now();
             let rs = RenderSettings { gather, ..rs.clone() };
-            drop(crate::render::render(scene, accel, input, camera, &rs, &|_| {}));
+            let pass = CameraPass {
+                scene,
+                accel,
+                photons: input,
+                camera,
+                settings: &rs,
+            };
+            drop(crate::render::render(pass, &|_| {}));
             *(if gather == 0 { &mut plain } else { &mut gathered }) += t.elapsed().as_secs_f64();
         }
     }
@@ -1075,16 +1082,14 @@ fn render_pass(
             pass
         )
         .entered();
-        acc.add_pass(
+        let camera_pass = CameraPass {
             scene,
             accel,
             photons,
             camera,
-            &rs,
-            &|n| phase.inc(n as u64),
-            deadline,
-            weight,
-        )
+            settings: &rs,
+        };
+        acc.add_pass(camera_pass, &|n| phase.inc(n as u64), deadline, weight)
     };
     (phase.finish(), added)
 }

@@ -86,7 +86,7 @@ fn a_budget_already_spent_still_gives_one_complete_pass_and_no_more() {
 #[test]
 fn a_camera_pass_past_its_deadline_is_given_up() {
     use photongrid::estimate::Estimator;
-    use photongrid::render::{render_until, PhotonData, RenderSettings};
+    use photongrid::render::{render_until, CameraPass, PhotonData, RenderSettings};
     let scene = scene();
     let settings = small();
     let prepared = photongrid::prepare(&scene, &settings, &Progress::quiet(), &mut Default::default()).unwrap();
@@ -107,8 +107,15 @@ fn a_camera_pass_past_its_deadline_is_given_up() {
     };
     let camera = &scene.cameras[0];
     let past = Some(Instant::now() - Duration::from_millis(1));
-    assert!(render_until(&scene, &prepared.accel, input, camera, &rs, &|_| {}, past).is_none());
+    let pass = CameraPass {
+        scene: &scene,
+        accel: &prepared.accel,
+        photons: input,
+        camera,
+        settings: &rs,
+    };
+    assert!(render_until(pass, &|_| {}, past).is_none());
     let later = Some(Instant::now() + Duration::from_secs(3600));
-    let film = render_until(&scene, &prepared.accel, input, camera, &rs, &|_| {}, later).expect("in time");
+    let film = render_until(pass, &|_| {}, later).expect("in time");
     assert!(film.mean()[1] > 0.0);
 }

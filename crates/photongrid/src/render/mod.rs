@@ -60,12 +60,12 @@ struct Tracer<'a> {
 }
 
 impl<'a> Tracer<'a> {
-    fn new(scene: &'a Scene, accel: &'a Accel, photons: PhotonData<'a>, settings: &'a RenderSettings) -> Self {
+    fn of(pass: CameraPass<'a>) -> Self {
         Tracer {
-            scene,
-            accel,
-            photons,
-            settings,
+            scene: pass.scene,
+            accel: pass.accel,
+            photons: pass.photons,
+            settings: pass.settings,
             knn: KnnBuffer::default(),
             mis: None,
         }
@@ -82,30 +82,34 @@ pub struct PhotonData<'a> {
     pub irradiance: Option<&'a IrradianceCache>,
 }
 
-/// Render `camera` into a film. `progress(rows)` is called as rows finish.
-pub fn render(
-    scene: &Scene,
-    accel: &Accel,
-    photons: PhotonData<'_>,
-    camera: &Camera,
-    settings: &RenderSettings,
-    progress: &(dyn Fn(usize) + Sync),
-) -> Film {
-    let film = render_until(scene, accel, photons, camera, settings, progress, None);
-    film.expect("a render without a deadline completes")
+/// One camera's pass: what it renders and with which photons.
+#[derive(Clone, Copy)]
+pub struct CameraPass<'a> {
+    /// The scene.
+    pub scene: &'a Scene,
+    /// Its BVH.
+    pub accel: &'a Accel,
+    /// This pass's photons.
+    pub photons: PhotonData<'a>,
+    /// The camera.
+    pub camera: &'a Camera,
+    /// Resolution, samples, seed.
+    pub settings: &'a RenderSettings,
+}
+
+/// Render a camera pass into a film. `progress(rows)` is called as rows finish.
+pub fn render(pass: CameraPass<'_>, progress: &(dyn Fn(usize) + Sync)) -> Film {
+    render_until(pass, progress, None).expect("a render without a deadline completes")
 }
 
 /// [`render`], given up (`None`) when `deadline` passes before every row is done: the rows
 /// still to do are skipped, so a pass that overruns a time budget ends at the deadline.
 pub fn render_until(
-    scene: &Scene,
-    accel: &Accel,
-    photons: PhotonData<'_>,
-    camera: &Camera,
-    settings: &RenderSettings,
+    pass: CameraPass<'_>,
     progress: &(dyn Fn(usize) + Sync),
     deadline: Option<Instant>,
 ) -> Option<Film> {
+    let (camera, settings) = (pass.camera, pass.settings);
     let (w, h) = (settings.width, settings.height);
     let mut film = Film::new(w, h);
     let spp = settings.spp.max(1);
@@ -115,7 +119,7 @@ pub fn render_until(
         .zip(film.aov.par_chunks_mut(w as usize))
         .enumerate()
         .for_each_init(
-            || Tracer::new(scene, accel, photons, settings),
+            || Tracer::of(pass),
             |tracer, (y, (row, aovs))| {
                 if late.load(Ordering::Relaxed) || deadline.is_some_and(|d| Instant::now() >= d) {
                     late.store(true, Ordering::Relaxed);
@@ -187,10 +191,7 @@ impl Tracer<'_> {
         let sp = SurfacePoint::new(self.scene, o, d, hit);
         let material = &self.scene.materials[sp.material as usize];
         if depth == 0 {
-            if let Some(a) = aov.as_deref_mut() {
-                a.normal = sp.facing_shading_normal;
-                a.depth = hit.t;
-            }
+            first_hit_aov(aov, &sp, hit.t);
         }
         let mut l = Rgb::ZERO;
         if material.is_emissive() && (material.double_sided || !sp.backface) {
@@ -332,5 +333,13 @@ impl Tracer<'_> {
             e += sum / samples as f32;
         }
         e
+    }
+}
+
+/// The AOVs of the first surface a camera sample meets: its normal and distance.
+fn first_hit_aov(aov: &mut Option<&mut Aov>, sp: &SurfacePoint, t: f32) {
+    if let Some(a) = aov.as_deref_mut() {
+        a.normal = sp.facing_shading_normal;
+        a.depth = t;
     }
 }

@@ -1,13 +1,11 @@
 //! Progressive rendering: the image of each camera accumulates passes, each with new photons
 //! and new camera samples, and the [`Budget`] says when to stop. The loop itself, which traces
-//! each pass's photons, is [`crate::pipeline::render_passes`].
+//! each pass's photons, is [`crate::pipeline::render`].
 
 use super::sppm::SppmFilm;
-use super::{render_until, PhotonData, RenderSettings};
-use crate::accel::Accel;
+use super::{render_until, CameraPass};
 use crate::estimate::Accumulation;
 use crate::film::{Aov, Film};
-use crate::scene::{Camera, Scene};
 use crate::Rgb;
 use std::time::Instant;
 
@@ -52,20 +50,15 @@ impl Accumulator {
     /// `settings.pass` are the pass's), weighted by `weight` in the average (a smaller last pass
     /// of a time budget counts less). Returns false, adding nothing, when the pass is given up
     /// at `deadline` (SPPM's passes update every sample in place and always complete).
-    #[allow(clippy::too_many_arguments)]
     pub fn add_pass(
         &mut self,
-        scene: &Scene,
-        accel: &Accel,
-        photons: PhotonData<'_>,
-        camera: &Camera,
-        settings: &RenderSettings,
+        pass: CameraPass<'_>,
         progress: &(dyn Fn(usize) + Sync),
         deadline: Option<Instant>,
         weight: f32,
     ) -> bool {
         match self {
-            Accumulator::Sppm(s) => s.add_pass(scene, accel, photons, camera, settings, progress),
+            Accumulator::Sppm(s) => s.add_pass(pass, progress),
             Accumulator::Average {
                 sum,
                 aov,
@@ -73,7 +66,7 @@ impl Accumulator {
                 weight: total,
                 ..
             } => {
-                let Some(film) = render_until(scene, accel, photons, camera, settings, progress, deadline) else {
+                let Some(film) = render_until(pass, progress, deadline) else {
                     return false;
                 };
                 for (s, c) in sum.iter_mut().zip(&film.color) {

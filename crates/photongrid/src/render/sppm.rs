@@ -12,15 +12,14 @@
 //! where it first meets a diffuse surface.
 
 use super::gltf::SppmStep;
-use super::{camera_ray, pixel_strata, PhotonData, RenderSettings, Tracer};
-use crate::accel::Accel;
+use super::{camera_ray, first_hit_aov, pixel_strata, CameraPass, Tracer};
 use crate::bsdf;
 use crate::estimate::density::photon_density;
 use crate::estimate::sppm::SppmPixel;
 use crate::estimate::Query;
 use crate::film::{Aov, Film};
 use crate::sampling::Rng;
-use crate::scene::{Camera, Scene, Surface};
+use crate::scene::Surface;
 use crate::settings::DirectLighting;
 use crate::surface::SurfacePoint;
 use crate::Rgb;
@@ -70,15 +69,8 @@ impl SppmFilm {
 
     /// Add one pass: visible points for `settings.seed`'s camera samples, gathered from this
     /// pass's photons only. `progress(rows)` is called as rows finish.
-    pub fn add_pass(
-        &mut self,
-        scene: &Scene,
-        accel: &Accel,
-        photons: PhotonData<'_>,
-        camera: &Camera,
-        settings: &RenderSettings,
-        progress: &(dyn Fn(usize) + Sync),
-    ) {
+    pub fn add_pass(&mut self, pass: CameraPass<'_>, progress: &(dyn Fn(usize) + Sync)) {
+        let (camera, settings) = (pass.camera, pass.settings);
         assert_eq!((settings.width, settings.height), (self.width, self.height));
         assert_eq!(settings.spp.max(1), self.spp);
         let w = self.width as usize;
@@ -90,7 +82,7 @@ impl SppmFilm {
             .zip(self.aov.par_chunks_mut(w))
             .enumerate()
             .for_each_init(
-                || Tracer::new(scene, accel, photons, settings),
+                || Tracer::of(pass),
                 |tracer, (y, ((samples, direct), aovs))| {
                     for x in 0..w {
                         let strata = pixel_strata(settings, (y * w + x) as u64);
@@ -156,10 +148,7 @@ impl Tracer<'_> {
             let sp = SurfacePoint::new(self.scene, o, d, hit);
             let material = &self.scene.materials[sp.material as usize];
             if depth == 0 {
-                if let Some(a) = aov.as_deref_mut() {
-                    a.normal = sp.facing_shading_normal;
-                    a.depth = hit.t;
-                }
+                first_hit_aov(&mut aov, &sp, hit.t);
             }
             if material.is_emissive() && (material.double_sided || !sp.backface) {
                 l += beta * material.emission;
