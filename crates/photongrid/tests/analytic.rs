@@ -19,6 +19,15 @@ const ALBEDO: f64 = 0.5;
 const W: u32 = 64;
 const H: u32 = 48;
 const YMAG: f64 = 2.0;
+/// The top-down camera every test here renders through.
+const VIEW: harness::TopView = harness::TopView {
+    cx: 0.0,
+    cz: 0.0,
+    ymag: YMAG,
+    height: 10.0,
+    w: W,
+    h: H,
+};
 /// Height of the lights above the plane.
 const LIGHT_H: f64 = 3.0;
 
@@ -66,41 +75,8 @@ fn plane_scene(dir: &TempDir, light: Light, rotation: [f32; 4]) -> std::path::Pa
         light: Some(l),
         ..Default::default()
     });
-    let c = g.camera(Camera::Orthographic {
-        xmag: (YMAG * W as f64 / H as f64) as f32,
-        ymag: YMAG as f32,
-    });
-    g.root(Node {
-        name: Some("Top".into()),
-        transform: Transform::tr([0.0, 10.0, 0.0], look_down()),
-        camera: Some(c),
-        ..Default::default()
-    });
+    VIEW.add_camera(&mut g);
     g.write_gltf(dir.path(), "plane.gltf")
-}
-
-/// World (x, z) on the plane seen at film position (fx, fy) (pixels, y down) by the camera of
-/// [`plane_scene`]: x = ndc_x · ymag · W/H, z = −ndc_y · ymag.
-fn film_to_world(fx: f64, fy: f64) -> (f64, f64) {
-    let ndc_x = 2.0 * fx / W as f64 - 1.0;
-    let ndc_y = 1.0 - 2.0 * fy / H as f64;
-    (ndc_x * YMAG * W as f64 / H as f64, -ndc_y * YMAG)
-}
-
-/// `f(x, z)` averaged over pixel (px, py) by 8×8 midpoint sub-sampling.
-fn pixel_mean(px: u32, py: u32, f: &dyn Fn(f64, f64) -> f64) -> f64 {
-    let n = 8;
-    let mut s = 0.0;
-    for i in 0..n {
-        for j in 0..n {
-            let (x, z) = film_to_world(
-                px as f64 + (i as f64 + 0.5) / n as f64,
-                py as f64 + (j as f64 + 0.5) / n as f64,
-            );
-            s += f(x, z);
-        }
-    }
-    s / (n * n) as f64
 }
 
 fn lum(c: glam::Vec3) -> f64 {
@@ -126,7 +102,7 @@ fn camera_mapping_matches_hand_computation() {
     for (fx, fy) in [(0.5, 0.5), (10.25, 40.75), (63.5, 47.5), (32.0, 24.0)] {
         let (o, d) = cam.generate_ray(glam::Vec2::new(fx as f32, fy as f32), W, H);
         assert!((d - Vec3::NEG_Y).length() < 1e-6, "{d}");
-        let (x, z) = film_to_world(fx, fy);
+        let (x, z) = VIEW.film_to_world(fx, fy);
         assert!(
             (o.x as f64 - x).abs() < 1e-5 && (o.z as f64 - z).abs() < 1e-5,
             "{o} vs {x} {z}"
@@ -144,7 +120,7 @@ fn point_light_on_lambert_plane_shadow_rays() {
     for py in 0..H {
         for px in 0..W {
             let got = lum(film.color[(py * W + px) as usize]);
-            let want = pixel_mean(px, py, &|x, z| point_radiance(candela, x, z));
+            let want = VIEW.pixel_mean(px, py, &|x, z| point_radiance(candela, x, z));
             let rel = (got / want - 1.0).abs();
             worst = worst.max(rel);
             assert!(
@@ -194,17 +170,17 @@ fn spot_light_on_lambert_plane_shadow_rays() {
     for py in 0..H {
         for px in 0..W {
             let got = lum(film.color[(py * W + px) as usize]);
-            let frac_outside = pixel_mean(px, py, &|x, z| if mask(x, z) > 0.0 { 0.0 } else { 1.0 });
+            let frac_outside = VIEW.pixel_mean(px, py, &|x, z| if mask(x, z) > 0.0 { 0.0 } else { 1.0 });
             // The footprint's point nearest to the spot's axis.
-            let (x0, z0) = film_to_world(px as f64, py as f64);
-            let (x1, z1) = film_to_world(px as f64 + 1.0, py as f64 + 1.0);
+            let (x0, z0) = VIEW.film_to_world(px as f64, py as f64);
+            let (x1, z1) = VIEW.film_to_world(px as f64 + 1.0, py as f64 + 1.0);
             let nearest = mask(0f64.clamp(x0.min(x1), x0.max(x1)), 0f64.clamp(z0.min(z1), z0.max(z1)));
-            let frac_full = pixel_mean(px, py, &|x, z| if mask(x, z) >= 1.0 { 1.0 } else { 0.0 });
-            let mask_mean = pixel_mean(px, py, &mask);
-            let want = pixel_mean(px, py, &radiance);
+            let frac_full = VIEW.pixel_mean(px, py, &|x, z| if mask(x, z) >= 1.0 { 1.0 } else { 0.0 });
+            let mask_mean = VIEW.pixel_mean(px, py, &mask);
+            let want = VIEW.pixel_mean(px, py, &radiance);
             // The jittered pixel is a mean of `spp` uniform samples over the footprint: its
             // relative standard deviation follows from the footprint's variance.
-            let second = pixel_mean(px, py, &|x, z| radiance(x, z).powi(2));
+            let second = VIEW.pixel_mean(px, py, &|x, z| radiance(x, z).powi(2));
             let sigma = if want > 0.0 {
                 (second - want * want).max(0.0).sqrt() / want / (spp as f64).sqrt()
             } else {
@@ -286,10 +262,10 @@ fn point_light_from_photons_only() {
     let (mut got, mut want, mut n) = (0.0, 0.0, 0);
     for py in 0..H {
         for px in 0..W {
-            let (x, z) = film_to_world(px as f64 + 0.5, py as f64 + 0.5);
+            let (x, z) = VIEW.film_to_world(px as f64 + 0.5, py as f64 + 0.5);
             if x.abs() < 1.0 && z.abs() < 1.0 {
                 got += lum(film.color[(py * W + px) as usize]);
-                want += pixel_mean(px, py, &|x, z| point_radiance(candela, x, z));
+                want += VIEW.pixel_mean(px, py, &|x, z| point_radiance(candela, x, z));
                 n += 1;
             }
         }

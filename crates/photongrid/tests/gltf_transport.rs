@@ -17,6 +17,15 @@ use std::f64::consts::PI;
 const W: u32 = 48;
 const H: u32 = 36;
 const YMAG: f64 = 1.5;
+/// The top-down camera every test here renders through.
+const VIEW: harness::TopView = harness::TopView {
+    cx: 0.0,
+    cz: 0.0,
+    ymag: YMAG,
+    height: 5.0,
+    w: W,
+    h: H,
+};
 /// Height of the point light above the plane.
 const LIGHT_H: f64 = 2.0;
 const CANDELA: f64 = 500.0;
@@ -52,39 +61,8 @@ fn plane_scene(dir: &TempDir, floor: Material, blocker: Option<Material>) -> std
         light: Some(l),
         ..Default::default()
     });
-    let c = g.camera(Camera::Orthographic {
-        xmag: (YMAG * W as f64 / H as f64) as f32,
-        ymag: YMAG as f32,
-    });
-    g.root(Node {
-        transform: Transform::tr([0.0, 5.0, 0.0], look_down()),
-        camera: Some(c),
-        ..Default::default()
-    });
+    VIEW.add_camera(&mut g);
     g.write_gltf(dir.path(), "plane.gltf")
-}
-
-/// World (x, z) on the plane under film position (fx, fy).
-fn film_to_world(fx: f64, fy: f64) -> (f64, f64) {
-    let ndc_x = 2.0 * fx / W as f64 - 1.0;
-    let ndc_y = 1.0 - 2.0 * fy / H as f64;
-    (ndc_x * YMAG * W as f64 / H as f64, -ndc_y * YMAG)
-}
-
-/// `f(x, z)` averaged over pixel (px, py) by 8×8 midpoint sub-sampling.
-fn pixel_mean(px: u32, py: u32, f: &dyn Fn(f64, f64) -> f64) -> f64 {
-    let n = 8;
-    let mut s = 0.0;
-    for i in 0..n {
-        for j in 0..n {
-            let (x, z) = film_to_world(
-                px as f64 + (i as f64 + 0.5) / n as f64,
-                py as f64 + (j as f64 + 0.5) / n as f64,
-            );
-            s += f(x, z);
-        }
-    }
-    s / (n * n) as f64
 }
 
 /// The glTF metal BRDF (spec Appendix B: GGX D, height-correlated Smith V, Schlick F with
@@ -155,7 +133,7 @@ fn point_light_over_rough_metal_plane_matches_the_closed_form_highlight() {
         for py in 0..H {
             for px in 0..W {
                 let got = lum(film.color[(py * W + px) as usize]);
-                let want = pixel_mean(px, py, &|x, z| highlight(base as f64, alpha, x, z));
+                let want = VIEW.pixel_mean(px, py, &|x, z| highlight(base as f64, alpha, x, z));
                 got_sum += got;
                 want_sum += want;
                 worst = worst.max((got / want - 1.0).abs());
@@ -271,7 +249,7 @@ fn shadow_share(film: &Film) -> f64 {
     for py in 10..26 {
         for px in 31..35 {
             got += lum(film.color[(py * W + px) as usize]);
-            want += pixel_mean(px, py, &unblocked);
+            want += VIEW.pixel_mean(px, py, &unblocked);
         }
     }
     got / want
