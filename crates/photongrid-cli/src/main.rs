@@ -63,6 +63,10 @@ enum Command {
     /// Error against time: render methods × photon counts × scenes × seeds against references;
     /// write bench.json, SVG charts and table.md.
     Bench(BenchArgs),
+    /// This machine's limits against a render: closest-hit and shadow rays/s through the BVH
+    /// for photon-pass-like rays, kNN queries/s on the photon index, and the same phases'
+    /// rates inside a real render of the classic pipeline, with their ratio.
+    Throughput(ThroughputArgs),
     /// Print the render settings: their defaults (jobs-file keys), or with --schema a JSON
     /// description of each (flag, heading, help, default, choices) for front ends such as the
     /// Blender add-on.
@@ -127,6 +131,37 @@ struct BenchArgs {
     /// No per-run lines on stderr.
     #[arg(short, long, help_heading = "Run")]
     quiet: bool,
+}
+
+#[derive(Args, Debug)]
+struct ThroughputArgs {
+    /// The scenes (.glb or .gltf), one or more.
+    #[arg(required = true, value_name = "SCENE")]
+    scenes: Vec<PathBuf>,
+    /// Rays recorded and traced in each ray measurement.
+    #[arg(long, default_value = "1M", value_parser = photongrid::settings::parse_count)]
+    rays: usize,
+    /// Photon paths of the index measurement and of the real render.
+    #[arg(long, default_value = "1M", value_parser = photongrid::settings::parse_count)]
+    photons: usize,
+    /// kNN queries timed.
+    #[arg(long, default_value = "200k", value_parser = photongrid::settings::parse_count)]
+    queries: usize,
+    /// Neighbours per kNN query.
+    #[arg(long, default_value_t = photongrid::Settings::default().neighbours)]
+    k: usize,
+    /// Image width of the real render.
+    #[arg(long, default_value_t = 320)]
+    width: u32,
+    /// Image height of the real render.
+    #[arg(long, default_value_t = 240)]
+    height: u32,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Print JSON (an array, one object per scene) instead of a Markdown table.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Args, Debug)]
@@ -301,6 +336,7 @@ fn run(cli: Cli) -> Result<()> {
             json,
         } => compare(&image, &reference, mask.as_deref(), block, json),
         Command::Bench(args) => bench(args),
+        Command::Throughput(args) => throughput(args),
         Command::Settings { schema } => settings_command(schema),
     }
 }
@@ -366,6 +402,31 @@ fn bench(a: BenchArgs) -> Result<()> {
     );
     for p in &summary.outputs {
         println!("{}", p.display());
+    }
+    Ok(())
+}
+
+fn throughput(a: ThroughputArgs) -> Result<()> {
+    use photongrid_cli::throughput::{measure, table_md, ThroughputOptions};
+    set_threads(a.threads)?;
+    let opts = ThroughputOptions {
+        rays: a.rays,
+        photons: a.photons,
+        queries: a.queries,
+        k: a.k,
+        width: a.width,
+        height: a.height,
+        ..ThroughputOptions::default()
+    };
+    let mut results = Vec::new();
+    for scene in &a.scenes {
+        eprintln!("throughput: {}", scene.display());
+        results.push(measure(scene, &opts)?);
+    }
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&results)?);
+    } else {
+        print!("{}", table_md(&results));
     }
     Ok(())
 }

@@ -70,15 +70,16 @@ fn run_pass(
     pass: &Pass,
     progress: &(dyn Fn(usize) + Sync),
     emit: &(dyn Fn(&mut Rng) -> Option<(crate::scene::light::Emission, f32)> + Sync),
-) -> (Vec<Photon>, Vec<u32>) {
+) -> PassOutput {
     let n = pass.paths;
-    let chunks: Vec<(Vec<Photon>, Vec<u32>)> = (0..n.div_ceil(CHUNK))
+    let chunks: Vec<Out> = (0..n.div_ceil(CHUNK))
         .into_par_iter()
         .map(|c| {
             let mut out = Out {
                 photons: Vec::with_capacity(CHUNK * 2),
                 triangles: Vec::new(),
                 record: settings.record_triangles,
+                rays: 0,
             };
             let end = ((c + 1) * CHUNK).min(n);
             for i in c * CHUNK..end {
@@ -99,20 +100,30 @@ fn run_pass(
                 }
             }
             progress(end - c * CHUNK);
-            (out.photons, out.triangles)
+            out
         })
         .collect();
-    let mut photons = Vec::with_capacity(chunks.iter().map(|c| c.0.len()).sum());
-    let mut triangles = Vec::with_capacity(if settings.record_triangles {
-        photons.capacity()
-    } else {
-        0
-    });
-    for (p, t) in chunks {
-        photons.extend_from_slice(&p);
-        triangles.extend_from_slice(&t);
+    let mut all = PassOutput {
+        photons: Vec::with_capacity(chunks.iter().map(|c| c.photons.len()).sum()),
+        triangles: Vec::new(),
+        rays: 0,
+    };
+    if settings.record_triangles {
+        all.triangles.reserve_exact(all.photons.capacity());
     }
-    (photons, triangles)
+    for c in chunks {
+        all.photons.extend_from_slice(&c.photons);
+        all.triangles.extend_from_slice(&c.triangles);
+        all.rays += c.rays;
+    }
+    all
+}
+
+/// The photons of one pass, the triangle of each (when recorded) and the rays traced.
+struct PassOutput {
+    photons: Vec<Photon>,
+    triangles: Vec<u32>,
+    rays: usize,
 }
 
 /// What the photon pass produced.
@@ -135,6 +146,9 @@ pub struct PhotonStats {
     pub indirect: usize,
     /// Bytes of photon storage (of the largest pass).
     pub bytes: usize,
+    /// Closest-hit rays traced by the photon passes (one per path segment), so that the
+    /// photon pass's ray rate can be set against the BVH's (`photongrid throughput`).
+    pub rays: usize,
 }
 
 impl PhotonStats {
@@ -148,6 +162,7 @@ impl PhotonStats {
         self.caustic += o.caustic;
         self.indirect += o.indirect;
         self.bytes = self.bytes.max(o.bytes);
+        self.rays += o.rays;
     }
 }
 
@@ -180,7 +195,7 @@ pub fn trace_photons(
         stream: stream::PHOTONS,
         paths: n,
     };
-    let (mut photons, mut triangles) = run_pass(scene, accel, settings, &global, progress, &|rng| {
+    let mut out = run_pass(scene, accel, settings, &global, progress, &|rng| {
         let (l, p) = pick_light(rng);
         let e = scene.lights[l].emit(rng);
         Some((e, p))
@@ -192,18 +207,25 @@ pub fn trace_photons(
             stream: stream::CAUSTIC_PHOTONS,
             paths: nc,
         };
-        let (p, t) = run_pass(scene, accel, settings, &pass, &|_| {}, &|rng| {
+        let c = run_pass(scene, accel, settings, &pass, &|_| {}, &|rng| {
             let (l, p) = pick_light(rng);
             targets.emit(&scene.lights[l], rng).map(|e| (e, p))
         });
-        photons.extend_from_slice(&p);
-        triangles.extend_from_slice(&t);
+        out.photons.extend_from_slice(&c.photons);
+        out.triangles.extend_from_slice(&c.triangles);
+        out.rays += c.rays;
     }
+    let PassOutput {
+        photons,
+        triangles,
+        rays,
+    } = out;
     let mut stats = PhotonStats {
         emitted: n,
         caustic_emitted: nc,
         caustic_targets: targets.targets.len(),
         stored: photons.len(),
+        rays,
         bytes: photons.len() * std::mem::size_of::<Photon>(),
         ..Default::default()
     };
@@ -222,6 +244,8 @@ struct Out {
     photons: Vec<Photon>,
     triangles: Vec<u32>,
     record: bool,
+    /// Closest-hit rays traced.
+    rays: usize,
 }
 
 impl Out {
@@ -295,6 +319,7 @@ fn trace_path(
 ) {
     let mut kind = PhotonKind::Direct;
     for depth in 1..=settings.max_depth {
+        out.rays += 1;
         let Some(hit) = accel.intersect(origin, dir, f32::INFINITY) else {
             return;
         };

@@ -1,0 +1,338 @@
+//! `photongrid throughput`: this machine's limits against what a render reaches.
+//!
+//! For a scene it measures, each on one thread and on all of them:
+//! * closest-hit and shadow (occlusion) rays per second through the library's BVH
+//!   ([`Accel`]), for incoherent rays distributed like the photon pass's: diffuse random walks
+//!   from the lights (origins on the surfaces the light reaches, cosine-distributed directions
+//!   about the facing normal), recorded once and then traced again under the clock;
+//! * kNN queries per second on the photon index ([`PhotonMap`], the classic estimate's k) at
+//!   the walks' surface points, with the normal test the estimate uses;
+//! * a real render of the classic pipeline (kNN, photons shown directly, no final gathering,
+//!   1 spp) through [`pipeline::render`], whose phase times and ray count give the photon pass's
+//!   rays per second, the index build's photons per second and the camera pass's samples per
+//!   second.
+//!
+//! The ratio that matters is the photon pass's rays per second per core over the pure
+//! closest-hit rate per core with all threads busy: how close the photon pass is to the BVH's
+//! limit for the same kind of rays.
+
+use anyhow::{Context, Result};
+use glam::Vec3;
+use photongrid::accel::Accel;
+use photongrid::estimate::PhotonMap;
+use photongrid::photon::{trace_photons, TraceSettings};
+use photongrid::pipeline::{self, RenderRequest};
+use photongrid::progress::Progress;
+use photongrid::sampling::{cosine_hemisphere, Rng};
+use photongrid::scene::light::LightSampler;
+use photongrid::scene::Scene;
+use photongrid::settings::{DirectLighting, Method, Settings};
+use photongrid::spatial::KnnBuffer;
+use photongrid::surface::SurfacePoint;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+use std::time::Instant;
+
+/// Stream of the recorded walks' random numbers (apart from the renderer's streams).
+const WALK_STREAM: u64 = 0x7468_726f_7567_6870;
+/// Diffuse bounces a walk continues with this probability (about the photon pass's mean
+/// albedo), at most [`WALK_DEPTH`] segments.
+const WALK_CONTINUE: f32 = 0.7;
+const WALK_DEPTH: u32 = 8;
+
+/// What to measure.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ThroughputOptions {
+    /// Rays recorded and traced in each ray measurement.
+    pub rays: usize,
+    /// Photon paths of the index measurement and of the real render.
+    pub photons: usize,
+    /// kNN queries timed.
+    pub queries: usize,
+    /// Neighbours per query (the classic estimate's k).
+    pub k: usize,
+    /// Image size of the real render.
+    pub width: u32,
+    /// Image size of the real render.
+    pub height: u32,
+    /// Seed of the walks, photons and render.
+    pub seed: u64,
+}
+
+impl Default for ThroughputOptions {
+    fn default() -> Self {
+        ThroughputOptions {
+            rays: 1_000_000,
+            photons: 1_000_000,
+            queries: 200_000,
+            k: Settings::default().neighbours,
+            width: 320,
+            height: 240,
+            seed: 0,
+        }
+    }
+}
+
+/// A rate measured on one thread and on all of them.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Rate {
+    /// Per second on one thread, alone.
+    pub one_thread: f64,
+    /// Per second per thread with every thread busy.
+    pub per_thread_all: f64,
+}
+
+/// The phases of a real render, as rates.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RenderRates {
+    /// Photon paths emitted.
+    pub paths: usize,
+    /// Photons stored (and indexed).
+    pub stored: usize,
+    /// Closest-hit rays of the photon pass.
+    pub photon_rays: usize,
+    /// Phase seconds: photon pass, index build, camera pass.
+    pub photons_seconds: f64,
+    /// See `photons_seconds`.
+    pub build_seconds: f64,
+    /// See `photons_seconds`.
+    pub render_seconds: f64,
+    /// Photon-pass rays per second per thread.
+    pub photon_rays_per_thread: f64,
+    /// Photons indexed per second (all threads).
+    pub build_photons_per_second: f64,
+    /// Camera samples (pixels × spp, each with one kNN query at most) per second per thread.
+    pub samples_per_thread: f64,
+    /// Peak resident memory of the process after the render, if known.
+    pub peak_bytes: Option<u64>,
+}
+
+/// One scene's figures.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SceneThroughput {
+    /// Scene file.
+    pub scene: String,
+    /// Triangles in the BVH.
+    pub triangles: usize,
+    /// Worker threads.
+    pub threads: usize,
+    /// Closest-hit rays per second.
+    pub closest_hit: Rate,
+    /// Shadow rays (occlusion tests over half the walk segments) per second.
+    pub shadow: Rate,
+    /// kNN queries per second on the photon index.
+    pub knn: Rate,
+    /// Photons in the measured index.
+    pub indexed: usize,
+    /// The real render.
+    pub render: RenderRates,
+    /// Photon-pass rays per second per thread ÷ pure closest-hit rays per second per thread
+    /// (all threads busy in both).
+    pub photon_pass_ratio: f64,
+}
+
+/// A recorded ray: origin, unit direction, and the distance to what it hit (∞ for a miss).
+#[derive(Clone, Copy, Debug)]
+struct WalkRay {
+    origin: Vec3,
+    dir: Vec3,
+    t: f32,
+}
+
+/// A recorded surface point with its facing normal (a kNN query site).
+type Site = (Vec3, Vec3);
+
+/// Diffuse random walks from the lights until `n` rays are recorded: the photon pass's rays
+/// without its glass and mirrors, and the surface points the walks reached.
+fn record_walks(scene: &Scene, accel: &Accel, n: usize, seed: u64) -> (Vec<WalkRay>, Vec<Site>) {
+    let lights = LightSampler::new(&scene.lights);
+    let (mut rays, mut sites) = (Vec::with_capacity(n), Vec::new());
+    let mut path = 0u64;
+    while rays.len() < n && !scene.lights.is_empty() {
+        let mut rng = Rng::keyed(seed, WALK_STREAM, path);
+        path += 1;
+        let (l, _) = lights.sample(rng.uniform());
+        let e = scene.lights[l].emit(&mut rng);
+        let (mut origin, mut dir) = (e.origin, e.direction);
+        for _ in 0..WALK_DEPTH {
+            let hit = accel.intersect(origin, dir, f32::INFINITY);
+            rays.push(WalkRay {
+                origin,
+                dir,
+                t: hit.map_or(f32::INFINITY, |h| h.t),
+            });
+            let Some(hit) = hit else { break };
+            let sp = SurfacePoint::new(scene, origin, dir, hit);
+            sites.push((sp.position, sp.facing_normal));
+            if rays.len() >= n || rng.uniform() >= WALK_CONTINUE {
+                break;
+            }
+            dir = cosine_hemisphere(rng.uniform2(), sp.facing_normal);
+            origin = sp.offset(dir);
+        }
+        if path > 64 * n as u64 + 1024 {
+            break; // lights that reach nothing
+        }
+    }
+    (rays, sites)
+}
+
+/// Items per second of `work` over `items`, on this thread alone and on all threads.
+fn rate<T: Sync>(items: &[T], work: impl Fn(&T) -> u32 + Sync) -> Rate {
+    if items.is_empty() {
+        return Rate::default();
+    }
+    let t = Instant::now();
+    let mut sink = 0u32;
+    for it in items {
+        sink = sink.wrapping_add(work(it));
+    }
+    let one = items.len() as f64 / t.elapsed().as_secs_f64().max(1e-9);
+    let t = Instant::now();
+    let par: u32 = items
+        .par_chunks(1024)
+        .map(|c| c.iter().fold(0u32, |a, it| a.wrapping_add(work(it))))
+        .reduce(|| 0, u32::wrapping_add);
+    let all = items.len() as f64 / t.elapsed().as_secs_f64().max(1e-9);
+    std::hint::black_box(sink.wrapping_add(par));
+    Rate {
+        one_thread: one,
+        per_thread_all: all / rayon::current_num_threads() as f64,
+    }
+}
+
+/// The classic pipeline of the paper's workload at the options' size.
+pub fn classic_settings(opts: &ThroughputOptions) -> Settings {
+    Settings {
+        method: Method::Knn,
+        direct: DirectLighting::Photons,
+        gather: 0,
+        caustic_photons: 0,
+        spp: 1,
+        photons: opts.photons,
+        neighbours: opts.k,
+        width: Some(opts.width),
+        height: Some(opts.height),
+        seed: opts.seed,
+        ..Settings::default()
+    }
+}
+
+/// kNN queries per second on an index of the scene's photons (the classic pass's), at `sites`.
+fn knn_rate(scene: &Scene, accel: &Accel, sites: &[Site], opts: &ThroughputOptions) -> (Rate, usize) {
+    let settings = classic_settings(opts);
+    let trace = TraceSettings {
+        photons: opts.photons,
+        max_depth: settings.photon_hits(),
+        store_direct: true,
+        seed: opts.seed,
+        record_triangles: false,
+        caustic_photons: 0,
+    };
+    let (photons, _, _) = trace_photons(scene, accel, &trace, &|_| {});
+    let max_radius = settings.max_radius * scene.bounds.diagonal();
+    let map = PhotonMap::build(photons, opts.k, scene.surface_area(), max_radius);
+    let sites = &sites[..sites.len().min(opts.queries)];
+    let rate = rate(sites, |&(p, n)| {
+        thread_local!(static BUF: std::cell::RefCell<KnnBuffer> = Default::default());
+        BUF.with(|b| map.knn(p, n, opts.k, &mut b.borrow_mut()).count as u32)
+    });
+    (rate, map.len())
+}
+
+/// A real render of the classic pipeline, its phases as rates.
+fn render_rates(scene: &Scene, opts: &ThroughputOptions) -> Result<RenderRates> {
+    let settings = classic_settings(opts);
+    let camera = scene.cameras.first().context("the scene has no camera")?;
+    let request = RenderRequest {
+        scene,
+        cameras: &[camera],
+        settings: &settings,
+        start: Instant::now(),
+    };
+    let r = pipeline::render(&request, &Progress::quiet(), None)?.report;
+    let threads = r.threads.max(1) as f64;
+    let per_s = |n: f64, s: f64| if s > 0.0 { n / s } else { 0.0 };
+    let samples: f64 = r.cameras.iter().map(|c| c.width as f64 * c.height as f64).sum::<f64>() * settings.spp as f64;
+    Ok(RenderRates {
+        paths: r.photons.emitted,
+        stored: r.photons.stored,
+        photon_rays: r.photons.rays,
+        photons_seconds: r.seconds.photons,
+        build_seconds: r.seconds.build,
+        render_seconds: r.seconds.render,
+        photon_rays_per_thread: per_s(r.photons.rays as f64, r.seconds.photons) / threads,
+        build_photons_per_second: per_s(r.photons.stored as f64, r.seconds.build),
+        samples_per_thread: per_s(samples, r.seconds.render) / threads,
+        peak_bytes: r.memory.peak_bytes,
+    })
+}
+
+/// Measure one scene.
+pub fn measure(path: &Path, opts: &ThroughputOptions) -> Result<SceneThroughput> {
+    let scene = photongrid::load(path).with_context(|| format!("loading {}", path.display()))?;
+    let accel = Accel::for_scene(&scene);
+    let (rays, sites) = record_walks(&scene, &accel, opts.rays, opts.seed);
+    let closest_hit = rate(&rays, |r| {
+        accel
+            .intersect(r.origin, r.dir, f32::INFINITY)
+            .map_or(0, |h| h.triangle)
+    });
+    // Shadow rays over the first half of each segment: they traverse like a visible light
+    // sample's (nothing blocks them), the camera pass's common case.
+    let segments: Vec<&WalkRay> = rays.iter().filter(|r| r.t.is_finite()).collect();
+    let shadow = rate(&segments, |r| accel.occluded(r.origin, r.dir, 0.5 * r.t) as u32);
+    let (knn, indexed) = knn_rate(&scene, &accel, &sites, opts);
+    let render = render_rates(&scene, opts)?;
+    let photon_pass_ratio = if closest_hit.per_thread_all > 0.0 {
+        render.photon_rays_per_thread / closest_hit.per_thread_all
+    } else {
+        0.0
+    };
+    Ok(SceneThroughput {
+        scene: path.display().to_string(),
+        triangles: scene.triangles.len(),
+        threads: rayon::current_num_threads(),
+        closest_hit,
+        shadow,
+        knn,
+        indexed,
+        render,
+        photon_pass_ratio,
+    })
+}
+
+/// `12345678.9` → `12.3 M`.
+fn mega(v: f64) -> String {
+    format!("{:.2} M", v / 1e6)
+}
+
+/// A Markdown table of the figures, one row per scene.
+pub fn table_md(results: &[SceneThroughput]) -> String {
+    let mut s = String::from(
+        "| scene | triangles | closest-hit rays/s (1 thread / per thread of all) | shadow rays/s (1 / per thread) \
+         | kNN queries/s (1 / per thread) | photon pass rays/s per thread | ratio | index build photons/s \
+         | camera samples/s per thread |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for r in results {
+        let name = Path::new(&r.scene)
+            .file_stem()
+            .map_or(r.scene.clone(), |n| n.to_string_lossy().into());
+        s += &format!(
+            "| {name} | {} | {} / {} | {} / {} | {} / {} | {} | {:.2} | {} | {} |\n",
+            r.triangles,
+            mega(r.closest_hit.one_thread),
+            mega(r.closest_hit.per_thread_all),
+            mega(r.shadow.one_thread),
+            mega(r.shadow.per_thread_all),
+            mega(r.knn.one_thread),
+            mega(r.knn.per_thread_all),
+            mega(r.render.photon_rays_per_thread),
+            r.photon_pass_ratio,
+            mega(r.render.build_photons_per_second),
+            mega(r.render.samples_per_thread),
+        );
+    }
+    s
+}
