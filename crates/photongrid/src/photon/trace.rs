@@ -62,7 +62,10 @@ struct Pass {
     paths: usize,
 }
 
-/// Trace `pass.paths` paths in parallel chunks; photon `i` uses its own keyed random stream.
+/// Trace `pass.paths` paths in parallel chunks, appending their photons to `all` in path
+/// order; photon `i` uses its own keyed random stream. The chunks run in waves of [`WAVE`]
+/// whose photons are appended before the next wave starts: the photons exist once, plus one
+/// wave's buffers (collecting every chunk first held them twice).
 fn run_pass(
     scene: &Scene,
     accel: &Accel,
@@ -70,56 +73,43 @@ fn run_pass(
     pass: &Pass,
     progress: &(dyn Fn(usize) + Sync),
     emit: &(dyn Fn(&mut Rng) -> Option<(crate::scene::light::Emission, f32)> + Sync),
-) -> PassOutput {
+    all: &mut PassOutput,
+) {
     let n = pass.paths;
-    let chunks: Vec<Out> = (0..n.div_ceil(CHUNK))
-        .into_par_iter()
-        .map(|c| {
-            let mut out = Out {
-                photons: Vec::with_capacity(CHUNK * 2),
-                triangles: Vec::new(),
-                record: settings.record_triangles,
-                rays: 0,
-            };
-            let end = ((c + 1) * CHUNK).min(n);
-            for i in c * CHUNK..end {
-                let mut rng = Rng::keyed(settings.seed, pass.stream, i as u64);
-                if let Some((e, p_light)) = emit(&mut rng) {
-                    let power = e.flux / (p_light * n as f32);
-                    trace_path(
-                        scene,
-                        accel,
-                        settings,
-                        pass.kind,
-                        e.origin,
-                        e.direction,
-                        power,
-                        &mut rng,
-                        &mut out,
-                    );
+    let chunks = n.div_ceil(CHUNK);
+    for wave in (0..chunks).step_by(WAVE) {
+        let outs: Vec<Out> = (wave..(wave + WAVE).min(chunks))
+            .into_par_iter()
+            .map(|c| {
+                let mut out = Out {
+                    photons: Vec::with_capacity(CHUNK * 2),
+                    triangles: Vec::new(),
+                    record: settings.record_triangles,
+                    rays: 0,
+                };
+                let end = ((c + 1) * CHUNK).min(n);
+                for i in c * CHUNK..end {
+                    let mut rng = Rng::keyed(settings.seed, pass.stream, i as u64);
+                    if let Some((e, p_light)) = emit(&mut rng) {
+                        let power = e.flux / (p_light * n as f32);
+                        let ray = (e.origin, e.direction, power);
+                        trace_path(scene, accel, settings, pass.kind, ray, &mut rng, &mut out);
+                    }
                 }
-            }
-            progress(end - c * CHUNK);
-            out
-        })
-        .collect();
-    let mut all = PassOutput {
-        photons: Vec::with_capacity(chunks.iter().map(|c| c.photons.len()).sum()),
-        triangles: Vec::new(),
-        rays: 0,
-    };
-    if settings.record_triangles {
-        all.triangles.reserve_exact(all.photons.capacity());
+                progress(end - c * CHUNK);
+                out
+            })
+            .collect();
+        for c in outs {
+            all.photons.extend_from_slice(&c.photons);
+            all.triangles.extend_from_slice(&c.triangles);
+            all.rays += c.rays;
+        }
     }
-    for c in chunks {
-        all.photons.extend_from_slice(&c.photons);
-        all.triangles.extend_from_slice(&c.triangles);
-        all.rays += c.rays;
-    }
-    all
 }
 
 /// The photons of one pass, the triangle of each (when recorded) and the rays traced.
+#[derive(Default)]
 struct PassOutput {
     photons: Vec<Photon>,
     triangles: Vec<u32>,
@@ -167,7 +157,10 @@ impl PhotonStats {
 }
 
 /// Paths per parallel work item: large enough to amortise scheduling, small for balance.
-const CHUNK: usize = 8192;
+const CHUNK: usize = 2048;
+/// Chunks per wave of [`run_pass`]: enough for balance between the threads, few enough that
+/// one wave's buffers are small beside the photons.
+const WAVE: usize = 128;
 
 /// Trace `settings.photons` photon paths. Deterministic for a seed, whatever the thread count.
 /// Returns the photons, the triangle of each (empty unless `record_triangles`), and counts.
@@ -195,11 +188,20 @@ pub fn trace_photons(
         stream: stream::PHOTONS,
         paths: n,
     };
-    let mut out = run_pass(scene, accel, settings, &global, progress, &|rng| {
-        let (l, p) = pick_light(rng);
-        let e = scene.lights[l].emit(rng);
-        Some((e, p))
-    });
+    let mut out = PassOutput::default();
+    run_pass(
+        scene,
+        accel,
+        settings,
+        &global,
+        progress,
+        &|rng| {
+            let (l, p) = pick_light(rng);
+            let e = scene.lights[l].emit(rng);
+            Some((e, p))
+        },
+        &mut out,
+    );
     let nc = if caustic_pass { settings.caustic_photons } else { 0 };
     if nc > 0 {
         let pass = Pass {
@@ -207,19 +209,26 @@ pub fn trace_photons(
             stream: stream::CAUSTIC_PHOTONS,
             paths: nc,
         };
-        let c = run_pass(scene, accel, settings, &pass, &|_| {}, &|rng| {
-            let (l, p) = pick_light(rng);
-            targets.emit(&scene.lights[l], rng).map(|e| (e, p))
-        });
-        out.photons.extend_from_slice(&c.photons);
-        out.triangles.extend_from_slice(&c.triangles);
-        out.rays += c.rays;
+        run_pass(
+            scene,
+            accel,
+            settings,
+            &pass,
+            &|_| {},
+            &|rng| {
+                let (l, p) = pick_light(rng);
+                targets.emit(&scene.lights[l], rng).map(|e| (e, p))
+            },
+            &mut out,
+        );
     }
     let PassOutput {
-        photons,
-        triangles,
+        mut photons,
+        mut triangles,
         rays,
     } = out;
+    photons.shrink_to_fit();
+    triangles.shrink_to_fit();
     let mut stats = PhotonStats {
         emitted: n,
         caustic_emitted: nc,
@@ -305,15 +314,13 @@ fn gltf_step(
     Some((sp.offset(s.direction), s.direction, power * (s.weight / q * c), kind))
 }
 
-#[allow(clippy::too_many_arguments)]
+/// Follow one photon path from `origin` along `dir` with `power`, storing its photons in `out`.
 fn trace_path(
     scene: &Scene,
     accel: &Accel,
     settings: &TraceSettings,
     pass: PassKind,
-    mut origin: Vec3,
-    mut dir: Vec3,
-    mut power: Rgb,
+    (mut origin, mut dir, mut power): (Vec3, Vec3, Rgb),
     rng: &mut Rng,
     out: &mut Out,
 ) {

@@ -1,12 +1,27 @@
-//! Stable counting sorts of item positions by cell: how the grid puts the items of a cell
-//! next to each other, serially for child grids and in parallel for the top level.
+//! Stable sorts of items by cell: how the grid puts the items of a cell next to each other.
+//!
+//! The top level sorts the caller's vector in place, so that the items exist once: counts per
+//! block of cells cut the cells into *buckets*, runs of consecutive cells holding about
+//! [`BUCKET_ITEMS`] items; an in-place distribution (American flag sort) moves every item into
+//! its bucket; then each bucket, small enough for the cache, is put in input order and
+//! counting-sorted by cell, in parallel. The input index travels with the items through the distribution, so the result is
+//! the stable order a counting sort would give, whatever the thread count. Child grids sort
+//! their (small) sub-range through a copy.
 
 use rayon::prelude::*;
 
-/// Stable counting sort of `pos` / `perm` by `keys` (`keys[i] < ncells`). Returns the
-/// offsets (length `ncells + 1`, relative to the start of the slices).
-pub(super) fn counting_sort(pos: &mut [[f32; 3]], perm: &mut [u32], keys: &[u32], ncells: usize) -> Vec<u32> {
-    let n = pos.len();
+/// Wanted items per bucket of the in-place distribution (a bucket's sort then works in the
+/// cache).
+const BUCKET_ITEMS: usize = 1 << 14;
+/// At most this many blocks of cells map cells to buckets (a table of one entry per block).
+const MAX_BLOCKS: usize = 1 << 16;
+/// Below this many items the top level sorts through a copy (the copy is small).
+const IN_PLACE_MIN: usize = 1 << 12;
+
+/// Stable counting sort of `items` by `keys` (`keys[i] < ncells`), through a copy of the
+/// slice. Returns the offsets (length `ncells + 1`, relative to the start of the slice).
+pub(super) fn counting_sort<T: Clone>(items: &mut [T], keys: &[u32], ncells: usize) -> Vec<u32> {
+    let n = items.len();
     let mut offsets = vec![0u32; ncells + 1];
     for &k in keys {
         offsets[k as usize] += 1;
@@ -18,89 +33,235 @@ pub(super) fn counting_sort(pos: &mut [[f32; 3]], perm: &mut [u32], keys: &[u32]
         *o = sum;
     }
     offsets[ncells] = n as u32;
-    let mut new_pos = vec![[0.0f32; 3]; n];
-    let mut new_perm = vec![0u32; n];
+    let src = items.to_vec();
     // Reverse scatter with decrement keeps the sort stable and leaves offsets[c] = start of c.
     for i in (0..n).rev() {
         let k = keys[i] as usize;
         offsets[k] -= 1;
-        let d = offsets[k] as usize;
-        new_pos[d] = pos[i];
-        new_perm[d] = perm[i];
+        items[offsets[k] as usize] = src[i].clone();
     }
-    pos.copy_from_slice(&new_pos);
-    perm.copy_from_slice(&new_perm);
     offsets
 }
 
-/// Parallel stable counting sort of `pos` by `keys` for the top level. Returns the offsets
-/// (length `ncells + 1`), the sorted positions and the permutation (sorted slot -> input index).
-///
-/// Each of `parts` workers owns a range of cells: it scans all keys and handles only those in
-/// its range, so histogram and scatter write disjoint slices (no atomics, no unsafe).
-pub(super) fn counting_sort_par(pos: &[[f32; 3]], keys: &[u32], ncells: usize) -> (Vec<u32>, Vec<[f32; 3]>, Vec<u32>) {
-    let n = keys.len();
-    let parts = rayon::current_num_threads().clamp(1, 64);
-    if parts == 1 || n < 1 << 12 {
-        let mut pos = pos.to_vec();
-        let mut perm: Vec<u32> = (0..n as u32).collect();
-        let offsets = counting_sort(&mut pos, &mut perm, keys, ncells);
-        return (offsets, pos, perm);
+/// Stable sort of `items` by `key(item)` (< `ncells`), in place (see the module comment).
+/// Returns the offsets (length `ncells + 1`): cell `c` holds `offsets[c]..offsets[c + 1]`.
+pub(super) fn sort_by_cell<T, K>(items: &mut [T], key: K, ncells: usize) -> Vec<u32>
+where
+    T: Clone + Send + Sync,
+    K: Fn(&T) -> u32 + Sync,
+{
+    let n = items.len();
+    if n < IN_PLACE_MIN {
+        let keys: Vec<u32> = items.iter().map(&key).collect();
+        return counting_sort(items, &keys, ncells);
     }
+    let buckets = Buckets::new(items, &key, ncells);
+    let mut index: Vec<u32> = (0..n as u32).into_par_iter().collect();
+    if buckets.len() > 1 {
+        let bucket_of = |t: &T| buckets.of_cell(key(t));
+        distribute(items, &mut index, &bucket_of, &buckets.starts);
+    }
+    // Disjoint sub-slices of items, input indices and offsets, one per bucket, sorted in
+    // parallel.
     let mut offsets = vec![0u32; ncells + 1];
-    let chunk = ncells.div_ceil(parts);
-    offsets[..ncells].par_chunks_mut(chunk).enumerate().for_each(|(j, h)| {
-        let lo = j * chunk;
-        for &k in keys {
-            let d = (k as usize).wrapping_sub(lo);
-            if d < h.len() {
-                h[d] += 1;
+    offsets[ncells] = n as u32;
+    let mut parts = Vec::with_capacity(buckets.len());
+    let (mut rest, mut rest_index, mut rest_offsets) = (items, index.as_mut_slice(), &mut offsets[..ncells]);
+    for b in 0..buckets.len() {
+        let len = buckets.starts[b + 1] - buckets.starts[b];
+        let (a, r) = std::mem::take(&mut rest).split_at_mut(len);
+        let (i, ri) = std::mem::take(&mut rest_index).split_at_mut(len);
+        let (cells_lo, cells_hi) = buckets.cells(b, ncells);
+        let (o, ro) = std::mem::take(&mut rest_offsets).split_at_mut(cells_hi - cells_lo);
+        (rest, rest_index, rest_offsets) = (r, ri, ro);
+        parts.push((a, i, o, cells_lo as u32, buckets.starts[b] as u32));
+    }
+    parts
+        .into_par_iter()
+        .for_each(|(items, index, offsets, cells_lo, base)| sort_bucket(items, index, &key, (offsets, cells_lo, base)));
+    offsets
+}
+
+/// Runs of consecutive cells ("buckets") of about [`BUCKET_ITEMS`] items, made of whole blocks
+/// of `2^shift` cells so that a cell's bucket is one table look-up.
+struct Buckets {
+    shift: u32,
+    /// Bucket of each block of cells.
+    of_block: Vec<u32>,
+    /// First block of each bucket, then the block count.
+    first_block: Vec<usize>,
+    /// First item of each bucket, then the item count.
+    starts: Vec<usize>,
+}
+
+impl Buckets {
+    /// Count the items per block (in parallel, each thread into its own table) and cut the
+    /// blocks into buckets.
+    fn new<T: Sync, K: Fn(&T) -> u32 + Sync>(items: &[T], key: &K, ncells: usize) -> Self {
+        let mut shift = 0;
+        while ncells.div_ceil(1 << shift) > MAX_BLOCKS {
+            shift += 1;
+        }
+        let blocks = ncells.div_ceil(1 << shift);
+        let counts = items
+            .par_chunks(1 << 16)
+            .fold(
+                || vec![0u32; blocks],
+                |mut c, chunk| {
+                    for t in chunk {
+                        c[(key(t) >> shift) as usize] += 1;
+                    }
+                    c
+                },
+            )
+            .reduce(
+                || vec![0u32; blocks],
+                |mut a, b| {
+                    a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
+                    a
+                },
+            );
+        let mut of_block = Vec::with_capacity(blocks);
+        let (mut first_block, mut starts) = (vec![0usize], vec![0usize]);
+        let mut sum = 0usize;
+        for (b, &c) in counts.iter().enumerate() {
+            if sum - starts[starts.len() - 1] >= BUCKET_ITEMS {
+                starts.push(sum);
+                first_block.push(b);
+            }
+            of_block.push((starts.len() - 1) as u32);
+            sum += c as usize;
+        }
+        starts.push(sum);
+        first_block.push(blocks);
+        Buckets {
+            shift,
+            of_block,
+            first_block,
+            starts,
+        }
+    }
+
+    fn len(&self) -> usize {
+        self.starts.len() - 1
+    }
+
+    /// The cells `lo..hi` of bucket `b`.
+    fn cells(&self, b: usize, ncells: usize) -> (usize, usize) {
+        let cell = |block: usize| (block << self.shift).min(ncells);
+        (cell(self.first_block[b]), cell(self.first_block[b + 1]))
+    }
+
+    #[inline(always)]
+    fn of_cell(&self, cell: u32) -> usize {
+        self.of_block[(cell >> self.shift) as usize] as usize
+    }
+}
+
+/// American flag sort: move every item (and its input index) into its bucket, in place;
+/// `starts` are the buckets' first items. Every swap puts one item where it belongs.
+///
+/// Each swap depends on the one before (the item swapped in decides where the next goes), so
+/// the walk would wait for memory at every bucket's next cache line; reading the item
+/// [`AHEAD`] places further on in the same bucket, whose result nothing waits for, fetches
+/// those lines early.
+fn distribute<T, B: Fn(&T) -> usize>(items: &mut [T], index: &mut [u32], bucket_of: &B, starts: &[usize]) {
+    let mut next: Vec<usize> = starts[..starts.len() - 1].to_vec();
+    let last = items.len() - 1;
+    let mut fetched = 0usize;
+    for b in 0..next.len() {
+        let end = starts[b + 1];
+        while next[b] < end {
+            let i = next[b];
+            let to = bucket_of(&items[i]);
+            if to == b {
+                next[b] += 1;
+            } else {
+                let j = next[to];
+                next[to] += 1;
+                fetched ^= bucket_of(&items[(j + AHEAD).min(last)]);
+                items.swap(i, j);
+                index.swap(i, j);
             }
         }
-    });
-    // Exclusive prefix sums: offsets[c] = start of cell c.
+    }
+    std::hint::black_box(fetched);
+}
+
+/// How far ahead in a bucket [`distribute`] reads (items).
+const AHEAD: usize = 16;
+
+/// Sort one bucket by (cell, input index), the order a stable counting sort gives: its items
+/// in input order, then counted and placed by cell. `offsets` are the bucket's cells' (the
+/// first is `cells_lo`), filled with absolute starts (the bucket's first item is `base`).
+fn sort_bucket<T: Clone, K: Fn(&T) -> u32>(items: &mut [T], index: &[u32], key: &K, at: (&mut [u32], u32, u32)) {
+    let (offsets, cells_lo, base) = at;
+    let mut order: Vec<u64> = index
+        .iter()
+        .enumerate()
+        .map(|(l, &i)| ((i as u64) << 32) | l as u64)
+        .collect();
+    order.sort_unstable();
+    for t in items.iter() {
+        offsets[(key(t) - cells_lo) as usize] += 1;
+    }
     let mut sum = 0u32;
     for o in offsets.iter_mut() {
         let c = *o;
         *o = sum;
         sum += c;
     }
-    // Split the cells into ranges holding about n / parts items each.
-    let mut bounds: Vec<usize> = (0..=parts)
-        .map(|j| offsets[..ncells].partition_point(|&o| (o as usize) < n * j / parts))
-        .collect();
-    bounds[0] = 0;
-    bounds[parts] = ncells;
-    bounds.dedup();
-    let mut new_pos = vec![[0.0f32; 3]; n];
-    let mut perm = vec![0u32; n];
-    let mut tasks = Vec::with_capacity(bounds.len());
-    {
-        let mut rest_pos: &mut [[f32; 3]] = &mut new_pos;
-        let mut rest_perm: &mut [u32] = &mut perm;
-        for w in bounds.windows(2) {
-            let (c0, c1) = (w[0], w[1]);
-            let len = (offsets[c1] - offsets[c0]) as usize;
-            let (a, b) = std::mem::take(&mut rest_pos).split_at_mut(len);
-            rest_pos = b;
-            let (c, d) = std::mem::take(&mut rest_perm).split_at_mut(len);
-            rest_perm = d;
-            tasks.push((c0, c1, a, c));
-        }
+    let src = items.to_vec();
+    for &o in &order {
+        let t = &src[o as u32 as usize];
+        let slot = &mut offsets[(key(t) - cells_lo) as usize];
+        items[*slot as usize] = t.clone();
+        *slot += 1;
     }
-    let offsets_ref = &offsets;
-    tasks.into_par_iter().for_each(|(c0, c1, out_pos, out_perm)| {
-        let base = offsets_ref[c0];
-        let mut cursor: Vec<u32> = offsets_ref[c0..c1].iter().map(|&o| o - base).collect();
-        for (i, &k) in keys.iter().enumerate() {
-            let d = (k as usize).wrapping_sub(c0);
-            if d < cursor.len() {
-                let dst = cursor[d] as usize;
-                cursor[d] += 1;
-                out_pos[dst] = pos[i];
-                out_perm[dst] = i as u32;
-            }
+    // Each cell's cursor ended at the next cell's start: shift back and make absolute.
+    let mut start = base;
+    for o in offsets.iter_mut() {
+        let end = *o + base;
+        *o = start;
+        start = end;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sampling::Rng;
+
+    /// `sort_by_cell` against the standard library's stable sort, with the offsets checked.
+    fn check(keys: Vec<u32>, ncells: usize) {
+        let items: Vec<(u32, u32)> = keys.iter().enumerate().map(|(i, &k)| (k, i as u32)).collect();
+        let mut expected = items.clone();
+        expected.sort_by_key(|t| t.0);
+        let mut sorted = items;
+        let offsets = sort_by_cell(&mut sorted, |t| t.0, ncells);
+        assert!(sorted == expected, "not the stable order ({} items)", keys.len());
+        assert_eq!(offsets.len(), ncells + 1);
+        for c in 0..ncells {
+            let run = &sorted[offsets[c] as usize..offsets[c + 1] as usize];
+            assert!(run.iter().all(|t| t.0 == c as u32), "cell {c}");
         }
-    });
-    (offsets, new_pos, perm)
+        assert_eq!(offsets[ncells] as usize, keys.len());
+    }
+
+    #[test]
+    fn in_place_sort_is_the_stable_counting_sort() {
+        let mut rng = Rng::keyed(15, 0, 0);
+        // Uniform keys over many cells (many buckets), over few cells (runs of equal keys),
+        // and skewed: half of the items in one cell, the rest spread.
+        let n = 200_000;
+        check((0..n).map(|_| rng.next_u32() % 300_000).collect(), 300_000);
+        check((0..n).map(|_| rng.next_u32() % 7).collect(), 7);
+        let skewed = (0..n)
+            .map(|i| if i % 2 == 0 { 4_321 } else { rng.next_u32() % (1 << 20) })
+            .collect();
+        check(skewed, 1 << 20);
+        // Below the in-place threshold, and empty.
+        check((0..100).map(|_| rng.next_u32() % 10).collect(), 10);
+        check(Vec::new(), 3);
+    }
 }

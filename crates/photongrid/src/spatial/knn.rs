@@ -11,12 +11,11 @@
 //! brute force.
 //!
 //! The distance filter is branch-free (every candidate key is written, the write index
-//! advances only for hits). Items are prefetched with the positions only for filters that
-//! capture state (a normal test reads the photon); a zero-sized filter such as `|_| true` is
-//! assumed not to read it, so `T` is then never touched.
+//! advances only for hits). Positions are read from the items themselves (no copy of them is
+//! kept), whose cache lines are requested in batches before they are scanned.
 
 use super::point_grid::{PointGrid, Positioned, DENSE_CELL};
-use super::traverse::{dist2, dist2_aabb, touch_items, touch_positions, Query, Sink, SCAN_CHUNK};
+use super::traverse::{dist2, dist2_aabb, touch_items, Query, Sink, SCAN_CHUNK};
 use glam::Vec3;
 use std::f32::consts::PI;
 
@@ -110,14 +109,7 @@ impl<T: Positioned, F: Fn(&T) -> bool> Sink for KnnSink<'_, T, F> {
 
     #[inline(always)]
     fn touch(&self, start: usize, end: usize) -> u32 {
-        let t = touch_positions(self.query.pos, start, end);
-        // A capturing filter (such as a normal test) reads the items of the candidates: fetch
-        // their cache lines too. A zero-sized filter (typically `|_| true`) is assumed not to.
-        if std::mem::size_of::<F>() != 0 {
-            t ^ touch_items(self.query.items, start, end)
-        } else {
-            t
-        }
+        touch_items(self.query.items, start, end)
     }
 
     #[inline(always)]
@@ -125,12 +117,12 @@ impl<T: Positioned, F: Fn(&T) -> bool> Sink for KnnSink<'_, T, F> {
         let q = self.query.q;
         let mut tmp = [0u64; SCAN_CHUNK];
         let mut base = start;
-        for chunk in self.query.pos[start..end].chunks(SCAN_CHUNK) {
+        for chunk in self.query.items[start..end].chunks(SCAN_CHUNK) {
             let (lo2, hi2) = (self.lo2, self.hi2);
             // Branch-free filter: write every key, advance only for those inside the shell.
             let mut n = 0usize;
-            for (j, p) in chunk.iter().enumerate() {
-                let d2 = dist2(*p, q);
+            for (j, it) in chunk.iter().enumerate() {
+                let d2 = dist2(it.position().to_array(), q);
                 tmp[n & (SCAN_CHUNK - 1)] = ((d2.to_bits() as u64) << 32) | (base + j) as u64;
                 n += (d2 <= hi2 && d2 > lo2) as usize;
             }

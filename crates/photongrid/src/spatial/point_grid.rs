@@ -1,8 +1,9 @@
 //! The grid itself: a uniform grid over the items' bounding box whose dense cells get child
 //! grids, and how it is built.
 //!
-//! * The items are owned by the grid and stored **sorted by cell** in one contiguous `Vec<T>`;
-//!   a parallel `Vec<[f32; 3]>` holds their positions so that distance tests never touch `T`.
+//! * The items are owned by the grid and stored **sorted by cell** in one contiguous `Vec<T>`:
+//!   the caller's vector, sorted in place (`cell_sort`), so that they exist once; distance
+//!   tests read the positions from the items.
 //! * The top-level grid covers the bounding box of the items with the caller's cell size. Its
 //!   cell count is capped (`min(2^24, 4 n)`) by enlarging the cell size, so its dense offset
 //!   table (counting sort, one `u32` per cell) is never larger than about 16 bytes per item.
@@ -17,7 +18,7 @@
 //! * Cells along x are adjacent in memory, so a query can scan each (y, z) row of cells as one
 //!   contiguous run of items.
 
-use super::cell_sort::{counting_sort, counting_sort_par};
+use super::cell_sort::{counting_sort, sort_by_cell};
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -110,8 +111,6 @@ impl Node {
 pub struct PointGrid<T> {
     /// Items sorted by cell (and by sub-cell inside dense cells).
     pub(super) items: Vec<T>,
-    /// `items[i].position()`, in the same order.
-    pub(super) pos: Vec<[f32; 3]>,
     /// Grid hierarchy; `nodes[0]` is the top level (empty when there are no items).
     pub(super) nodes: Vec<Node>,
     /// Effective cell size of the top level.
@@ -177,12 +176,12 @@ pub(super) fn max_abs(p: Vec3) -> f32 {
     p.abs().max_element()
 }
 
-/// Bounding box of a set of positions.
-fn bounds_of(pos: &[[f32; 3]]) -> (Vec3, Vec3) {
-    pos.iter().fold(
+/// Bounding box of the items' positions.
+fn bounds_of<T: Positioned>(items: &[T]) -> (Vec3, Vec3) {
+    items.iter().fold(
         (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
-        |(lo, hi), p| {
-            let p = Vec3::from(*p);
+        |(lo, hi), t| {
+            let p = t.position();
             (lo.min(p), hi.max(p))
         },
     )
@@ -218,12 +217,12 @@ fn grid_dims(ext: Vec3, mut cell: f32, max_cells: usize) -> (f32, [usize; 3]) {
 // ---------------------------------------------------------------------------------------------
 // Building.
 
-/// Build a child grid (and its descendants) over `pos` / `perm`, whose first item has the
-/// absolute index `base`. Returns `None` when subdividing would not help (degenerate extent).
-/// Node 0 of the result is the child's own grid; child indices are relative to the result.
-fn build_subtree(pos: &mut [[f32; 3]], perm: &mut [u32], base: usize, depth: u32) -> Option<Vec<Node>> {
-    let m = pos.len();
-    let (lo, hi) = bounds_of(pos);
+/// Build a child grid (and its descendants) over `items`, whose first item has the absolute
+/// index `base`. Returns `None` when subdividing would not help (degenerate extent). Node 0 of
+/// the result is the child's own grid; child indices are relative to the result.
+fn build_subtree<T: Positioned + Clone>(items: &mut [T], base: usize, depth: u32) -> Option<Vec<Node>> {
+    let m = items.len();
+    let (lo, hi) = bounds_of(items);
     let ext = hi - lo;
     let mut e = ext.to_array();
     e.sort_unstable_by(|a, b| b.total_cmp(a));
@@ -246,15 +245,18 @@ fn build_subtree(pos: &mut [[f32; 3]], perm: &mut [u32], base: usize, depth: u32
     if !inv.is_finite() {
         return None;
     }
-    let keys: Vec<u32> = pos.iter().map(|p| cell_key(p, lo, inv, dims)).collect();
-    let mut offsets = counting_sort(pos, perm, &keys, ncells);
+    let keys: Vec<u32> = items
+        .iter()
+        .map(|t| cell_key(&t.position().to_array(), lo, inv, dims))
+        .collect();
+    let mut offsets = counting_sort(items, &keys, ncells);
     drop(keys);
     let mut nodes = vec![Node::new(lo, hi, cell, inv, dims, Vec::new())];
     if depth < MAX_DEPTH {
         for c in 0..ncells {
             let (s, t) = (offsets[c] as usize, offsets[c + 1] as usize);
             if t - s > DENSE_CELL as usize {
-                if let Some(sub) = build_subtree(&mut pos[s..t], &mut perm[s..t], base + s, depth + 1) {
+                if let Some(sub) = build_subtree(&mut items[s..t], base + s, depth + 1) {
                     let id = nodes.len();
                     nodes[0].children.push((c as u32, id as u32));
                     append_nodes(&mut nodes, sub, id);
@@ -280,16 +282,12 @@ fn append_nodes(nodes: &mut Vec<Node>, sub: Vec<Node>, id: usize) {
     }
 }
 
-/// Positions of `items`, after dropping the items whose position is not finite.
-fn finite_positions<T: Positioned + Send + Sync>(items: &mut Vec<T>) -> Vec<[f32; 3]> {
-    let mut pos: Vec<[f32; 3]> = items.par_iter().map(|t| t.position().to_array()).collect();
-    let finite = |p: &[f32; 3]| p[0].is_finite() && p[1].is_finite() && p[2].is_finite();
-    if !pos.par_iter().all(finite) {
-        let mut keep = pos.iter().map(finite).collect::<Vec<_>>().into_iter();
-        items.retain(|_| keep.next().unwrap_or(false));
-        pos.retain(finite);
+/// Drop the items whose position is not finite, in place.
+fn drop_non_finite<T: Positioned + Send + Sync>(items: &mut Vec<T>) {
+    let finite = |t: &T| t.position().is_finite();
+    if !items.par_iter().all(finite) {
+        items.retain(finite);
     }
-    pos
 }
 
 /// Cell size, inverse and dimensions of the top-level grid over `ext` for `n` items and the
@@ -319,9 +317,9 @@ fn root_grid(ext: Vec3, cell_size: f32, n: usize) -> (f32, f32, [usize; 3]) {
 }
 
 /// Child grids for the dense cells of the top level (cell `c` holds `offsets[c]..offsets[c+1]`),
-/// built in parallel over disjoint sub-slices of `pos` / `perm`; appended to `nodes`, whose
-/// node 0 is the top level.
-fn add_dense_children(nodes: &mut Vec<Node>, pos: &mut [[f32; 3]], perm: &mut [u32]) {
+/// built in parallel over disjoint sub-slices of `items`; appended to `nodes`, whose node 0 is
+/// the top level.
+fn add_dense_children<T: Positioned + Clone + Send>(nodes: &mut Vec<Node>, items: &mut [T]) {
     let dense: Vec<(usize, usize, usize)> = nodes[0]
         .offsets
         .par_windows(2)
@@ -331,23 +329,19 @@ fn add_dense_children(nodes: &mut Vec<Node>, pos: &mut [[f32; 3]], perm: &mut [u
         .collect();
     let mut segments = Vec::with_capacity(dense.len());
     {
-        let mut rest_pos: &mut [[f32; 3]] = pos;
-        let mut rest_perm: &mut [u32] = perm;
+        let mut rest: &mut [T] = items;
         let mut consumed = 0usize;
         for &(c, s, e) in &dense {
-            let (_, tail) = std::mem::take(&mut rest_pos).split_at_mut(s - consumed);
+            let (_, tail) = std::mem::take(&mut rest).split_at_mut(s - consumed);
             let (seg, tail) = tail.split_at_mut(e - s);
-            rest_pos = tail;
-            let (_, tailp) = std::mem::take(&mut rest_perm).split_at_mut(s - consumed);
-            let (segp, tailp) = tailp.split_at_mut(e - s);
-            rest_perm = tailp;
+            rest = tail;
             consumed = e;
-            segments.push((c, s, seg, segp));
+            segments.push((c, s, seg));
         }
     }
     let subtrees: Vec<(usize, Option<Vec<Node>>)> = segments
         .into_par_iter()
-        .map(|(c, s, seg, segp)| (c, build_subtree(seg, segp, s, 1)))
+        .map(|(c, s, seg)| (c, build_subtree(seg, s, 1)))
         .collect();
     for (c, sub) in subtrees {
         if let Some(sub) = sub {
@@ -362,7 +356,6 @@ impl<T> PointGrid<T> {
     fn empty(cell_size: f32) -> Self {
         PointGrid {
             items: Vec::new(),
-            pos: Vec::new(),
             nodes: Vec::new(),
             cell_size,
             pad_abs: 0.0,
@@ -388,34 +381,25 @@ impl<T: Positioned + Send + Sync + Clone> PointGrid<T> {
     /// If there are `u32::MAX` items or more.
     pub fn build(items: Vec<T>, cell_size: f32) -> Self {
         let mut items = items;
-        let pos = finite_positions(&mut items);
+        drop_non_finite(&mut items);
         let n = items.len();
         assert!(n < u32::MAX as usize, "PointGrid holds fewer than u32::MAX items");
         if n == 0 {
             return Self::empty(cell_size);
         }
-        let (lo, hi) = pos.par_chunks(1 << 16).map(bounds_of).reduce(
+        let (lo, hi) = items.par_chunks(1 << 16).map(bounds_of).reduce(
             || (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
             |a, b| (a.0.min(b.0), a.1.max(b.1)),
         );
         let (cell, inv, dims) = root_grid(hi - lo, cell_size, n);
         let ncells = dims[0] * dims[1] * dims[2];
-        let keys: Vec<u32> = pos.par_iter().map(|p| cell_key(p, lo, inv, dims)).collect();
-        let sorted = counting_sort_par(&pos, &keys, ncells);
-        drop(keys);
-        drop(pos);
-        let (offsets, mut pos, mut perm) = sorted;
-
+        let key = |t: &T| cell_key(&t.position().to_array(), lo, inv, dims);
+        let offsets = sort_by_cell(&mut items, key, ncells);
         let mut nodes = vec![Node::new(lo, hi, cell, inv, dims, offsets)];
-        add_dense_children(&mut nodes, &mut pos, &mut perm);
-
-        let sorted: Vec<T> = perm.par_iter().map(|&i| items[i as usize].clone()).collect();
-        drop(items);
-        drop(perm);
+        add_dense_children(&mut nodes, &mut items);
         let pad_abs = REL_PAD * max_abs(lo).max(max_abs(hi)) + f32::MIN_POSITIVE;
         PointGrid {
-            items: sorted,
-            pos,
+            items,
             nodes,
             cell_size: cell,
             pad_abs,
@@ -445,8 +429,6 @@ impl<T: Positioned + Send + Sync + Clone> PointGrid<T> {
 
     /// Approximate heap memory in bytes.
     pub fn memory_bytes(&self) -> usize {
-        self.items.capacity() * std::mem::size_of::<T>()
-            + self.pos.capacity() * std::mem::size_of::<[f32; 3]>()
-            + self.nodes.iter().map(Node::memory_bytes).sum::<usize>()
+        self.items.capacity() * std::mem::size_of::<T>() + self.nodes.iter().map(Node::memory_bytes).sum::<usize>()
     }
 }

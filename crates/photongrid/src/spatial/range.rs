@@ -1,7 +1,7 @@
 //! Fixed-radius queries on a [`PointGrid`]: visiting or counting every item within a radius.
 
 use super::point_grid::{PointGrid, Positioned};
-use super::traverse::{dist2, touch_items, touch_positions, Query, Sink, SCAN_CHUNK};
+use super::traverse::{dist2, touch_items, Query, Sink, SCAN_CHUNK};
 use glam::Vec3;
 
 /// Calls a closure for every item within the radius.
@@ -19,8 +19,7 @@ impl<T: Positioned, F: FnMut(&T, f32)> Sink for EachSink<'_, T, F> {
 
     #[inline(always)]
     fn touch(&self, start: usize, end: usize) -> u32 {
-        // The callback receives every item in range: fetch their cache lines too.
-        touch_positions(self.query.pos, start, end) ^ touch_items(self.query.items, start, end)
+        touch_items(self.query.items, start, end)
     }
 
     #[inline(always)]
@@ -29,10 +28,10 @@ impl<T: Positioned, F: FnMut(&T, f32)> Sink for EachSink<'_, T, F> {
         let r2 = self.r2;
         let mut tmp = [(0u32, 0f32); SCAN_CHUNK];
         let mut base = start;
-        for chunk in self.query.pos[start..end].chunks(SCAN_CHUNK) {
+        for chunk in self.query.items[start..end].chunks(SCAN_CHUNK) {
             let mut n = 0usize;
-            for (j, p) in chunk.iter().enumerate() {
-                let d2 = dist2(*p, q);
+            for (j, it) in chunk.iter().enumerate() {
+                let d2 = dist2(it.position().to_array(), q);
                 tmp[n & (SCAN_CHUNK - 1)] = ((base + j) as u32, d2);
                 n += (d2 <= r2) as usize;
             }
@@ -51,7 +50,7 @@ struct CountSink<'a, T> {
     count: usize,
 }
 
-impl<T> Sink for CountSink<'_, T> {
+impl<T: Positioned> Sink for CountSink<'_, T> {
     #[inline(always)]
     fn radius2(&self) -> f32 {
         self.r2
@@ -59,16 +58,16 @@ impl<T> Sink for CountSink<'_, T> {
 
     #[inline(always)]
     fn touch(&self, start: usize, end: usize) -> u32 {
-        touch_positions(self.query.pos, start, end)
+        touch_items(self.query.items, start, end)
     }
 
     #[inline(always)]
     fn scan(&mut self, start: usize, end: usize) {
         let q = self.query.q;
         let r2 = self.r2;
-        self.count += self.query.pos[start..end]
+        self.count += self.query.items[start..end]
             .iter()
-            .filter(|p| dist2(**p, q) <= r2)
+            .filter(|it| dist2(it.position().to_array(), q) <= r2)
             .count();
     }
 }

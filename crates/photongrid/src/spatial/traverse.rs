@@ -14,9 +14,8 @@ const ROW_BATCH: usize = 16;
 /// Items a sink examines per branch-free filtering step (a power of two).
 pub(super) const SCAN_CHUNK: usize = 64;
 
-/// What a sink scans: the grid's positions and items, and the query point.
+/// What a sink scans: the grid's items, and the query point.
 pub(super) struct Query<'a, T> {
-    pub(super) pos: &'a [[f32; 3]],
     pub(super) items: &'a [T],
     pub(super) q: [f32; 3],
 }
@@ -30,12 +29,6 @@ pub(super) trait Sink {
     /// Load every cache line `scan(start, end)` will read (the result only defeats dead-code
     /// elimination). Called for a batch of ranges before any is scanned, so the misses overlap.
     fn touch(&self, start: usize, end: usize) -> u32;
-}
-
-/// Read one float of every cache line of `pos[start..end]` (12-byte items, 64-byte lines).
-#[inline(always)]
-pub(super) fn touch_positions(pos: &[[f32; 3]], start: usize, end: usize) -> u32 {
-    pos[start..end].iter().step_by(5).fold(0, |a, p| a ^ p[0].to_bits())
 }
 
 /// Read one float of (about) every cache line of `items[start..end]`.
@@ -165,7 +158,6 @@ impl<T> PointGrid<T> {
     /// The query at `p` over this grid's items.
     pub(super) fn query(&self, p: Vec3) -> Query<'_, T> {
         Query {
-            pos: &self.pos,
             items: &self.items,
             q: p.to_array(),
         }
