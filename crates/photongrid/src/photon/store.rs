@@ -170,15 +170,26 @@ pub fn rgbe_encode_dithered(c: Rgb, dither: Vec3) -> [u8; 4] {
         return [0; 4];
     }
     let mut e = m.log2().floor() as i32 + 1; // m / 2^e in [0.5, 1)
-    if m * 256.0 * (2.0f32).powi(-e) > 255.0 {
+    if m * 256.0 * exp2i(-e) > 255.0 {
         // Just below a power of two the largest channel needs more than 255 steps: take the next
         // exponent (clamping at 255 would lose up to a whole step).
         e += 1;
     }
-    let scale = 256.0 * (2.0f32).powi(-e);
+    let scale = 256.0 * exp2i(-e);
     let enc = |v: f32, u: f32| ((v * scale + u.clamp(0.0, 0.999_999)).floor() as u32).min(255) as u8;
     let r = [enc(c.x, dither.x), enc(c.y, dither.y), enc(c.z, dither.z)];
     [r[0], r[1], r[2], (e + 128).clamp(0, 255) as u8]
+}
+
+/// `2^k`, the value `2f32.powi(k)` gives, built from its bits where it is a normal float (the
+/// photon pass encodes every photon's power: `powi` is a loop of multiplications).
+#[inline]
+fn exp2i(k: i32) -> f32 {
+    if (-126..=127).contains(&k) {
+        f32::from_bits(((k + 127) as u32) << 23)
+    } else {
+        2f32.powi(k)
+    }
 }
 
 /// Decode [`rgbe_encode`].
@@ -186,7 +197,7 @@ pub fn rgbe_decode(v: [u8; 4]) -> Rgb {
     if v[3] == 0 {
         return Rgb::ZERO;
     }
-    let f = (2.0f32).powi(v[3] as i32 - 128 - 8);
+    let f = exp2i(v[3] as i32 - 128 - 8);
     Rgb::new(v[0] as f32, v[1] as f32, v[2] as f32) * f
 }
 
@@ -224,6 +235,13 @@ mod tests {
         let below = 1.0 - 1e-4;
         let q = rgbe_decode(rgbe_encode(Rgb::new(below, 0.5, 0.0)));
         assert!((q.x - below).abs() < 1e-3, "{q}");
+    }
+
+    #[test]
+    fn exp2i_is_powi() {
+        for k in -160..=160 {
+            assert_eq!(exp2i(k).to_bits(), 2f32.powi(k).to_bits(), "2^{k}");
+        }
     }
 
     #[test]
