@@ -303,9 +303,13 @@ pub fn measure(path: &Path, opts: &ThroughputOptions) -> Result<SceneThroughput>
     })
 }
 
-/// `12345678.9` → `12.3 M`.
+/// `12345678.9` → `12.35 M`, `4321.0` → `0.0043 M`.
 fn mega(v: f64) -> String {
-    format!("{:.2} M", v / 1e6)
+    if v >= 1e5 {
+        format!("{:.2} M", v / 1e6)
+    } else {
+        format!("{:.2e} M", v / 1e6)
+    }
 }
 
 /// A Markdown table of the figures, one row per scene.

@@ -12,8 +12,8 @@
 //! - while one camera renders and is written: its pass film and the encoded image (72 bytes
 //!   a pixel), and each worker thread's sample strata (4 bytes × `spp`);
 //! - one pass's photons: stored photons per emitted path from the scene's mean albedo
-//!   (1 + ρ + ρ² + … up to `Settings::photon_hits()` bounces), about 100 bytes each while traced and
-//!   indexed, 72 more when final gathering indexes all of them again;
+//!   (1 + ρ + ρ² + … up to `Settings::photon_hits()` bounces), about 48 bytes each while traced and
+//!   indexed, 44 more when final gathering indexes all of them again;
 //! - the grids the estimate needs: at least one plane of `grid_res²` cells (16 bytes each),
 //!   or the multiscale pyramids' `grid_cells` (72 bytes each with the coarser levels).
 //!
@@ -34,11 +34,12 @@ const TRANSIENT_BYTES_PER_PIXEL: u64 = 72;
 const SPPM_BYTES_PER_SAMPLE: u64 = 20;
 /// Bytes per sample of a pixel's strata, per worker thread.
 const STRATA_BYTES_PER_SAMPLE: u64 = 4;
-/// Bytes per stored photon while a pass traces and indexes it (photon 24, its triangle 4,
-/// the index's items and positions 48, build scratch 24).
-const BYTES_PER_PHOTON: u64 = 100;
-/// More bytes per stored photon when final gathering indexes all photons a second time.
-const GATHER_BYTES_PER_PHOTON: u64 = 72;
+/// Bytes per stored photon while a pass traces and indexes it (photon 24, held once: the index
+/// sorts it in place; its triangle 4; the sort's input index 4; cell offsets up to 16).
+const BYTES_PER_PHOTON: u64 = 48;
+/// More bytes per stored photon when final gathering indexes all photons a second time (a
+/// copy of the photons 24, its sort's input index 4 and cell offsets up to 16).
+const GATHER_BYTES_PER_PHOTON: u64 = 44;
 /// Bytes per triangle: the scene's copy and the BVH built over it.
 const BYTES_PER_TRIANGLE: u64 = std::mem::size_of::<Triangle>() as u64 + 200;
 /// Bytes per plane-grid cell (counts, filtered counts, wavelet scratch).

@@ -300,8 +300,9 @@ pub struct Checkpoint<'a> {
 }
 
 /// Stored photons per emitted path is at least about one in a closed scene; 24 bytes each,
-/// held twice while the index is sorted.
-const MIN_BYTES_PER_PHOTON: f64 = 48.0;
+/// held once (the index sorts them in place), plus the sort's 4-byte input index and the cell
+/// offsets.
+const MIN_BYTES_PER_PHOTON: f64 = 32.0;
 
 fn available_memory_bytes() -> Option<f64> {
     let s = std::fs::read_to_string("/proc/meminfo").ok()?;
