@@ -238,14 +238,21 @@ pub fn trace_photons(
         bytes: photons.len() * std::mem::size_of::<Photon>(),
         ..Default::default()
     };
-    for p in &photons {
-        match p.kind() {
-            PhotonKind::Direct => stats.direct += 1,
-            PhotonKind::Caustic => stats.caustic += 1,
-            PhotonKind::Indirect => stats.indirect += 1,
+    stats.count_kinds(&photons);
+    (photons, triangles, stats)
+}
+
+impl PhotonStats {
+    /// Add the photons of each kind to the counts.
+    fn count_kinds(&mut self, photons: &[Photon]) {
+        for p in photons {
+            match p.kind() {
+                PhotonKind::Direct => self.direct += 1,
+                PhotonKind::Caustic => self.caustic += 1,
+                PhotonKind::Indirect => self.indirect += 1,
+            }
         }
     }
-    (photons, triangles, stats)
 }
 
 /// Per-thread output of the tracer.
