@@ -61,7 +61,9 @@ pub struct Settings {
     /// Filtered photons per grid cell below which the kNN radius is used (shadows).
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Estimate", default_value_t = Settings::default().shadow_count))]
     pub shadow_count: f32,
-    /// Largest photon gather radius, as a fraction of the scene's bounding-box diagonal.
+    /// Largest kNN search radius, as a fraction of the scene's bounding-box diagonal (searches
+    /// also stop at three times the radius that holds k photons at the map's mean density).
+    /// Where fewer than k photons lie closer, the estimate uses those within it.
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Estimate", default_value_t = Settings::default().max_radius))]
     #[serde(alias = "max_radius_rel")]
     pub max_radius: f32,

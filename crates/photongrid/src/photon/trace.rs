@@ -135,6 +135,15 @@ pub struct PhotonStats {
     pub indirect: usize,
     /// Bytes of photon storage (of the largest pass).
     pub bytes: usize,
+    /// Wall seconds of the global pass's tracing (the time budget prices each kind of path).
+    pub global_seconds: f64,
+    /// Wall seconds of the caustic pass's tracing.
+    pub caustic_seconds: f64,
+    /// Stored power (luminance, W) of caustic photons, and of all photons: how much of the
+    /// light caustics carry.
+    pub caustic_power: f64,
+    /// Stored power (luminance, W) of all photons.
+    pub stored_power: f64,
 }
 
 impl PhotonStats {
@@ -148,6 +157,10 @@ impl PhotonStats {
         self.caustic += o.caustic;
         self.indirect += o.indirect;
         self.bytes = self.bytes.max(o.bytes);
+        self.global_seconds += o.global_seconds;
+        self.caustic_seconds += o.caustic_seconds;
+        self.caustic_power += o.caustic_power;
+        self.stored_power += o.stored_power;
     }
 }
 
@@ -173,6 +186,7 @@ pub fn trace_photons(
     // The global pass; when the caustic pass runs, it owns every light → specular → diffuse
     // photon and the global pass must not store them too.
     let n = settings.photons;
+    let t0 = std::time::Instant::now();
     let global = Pass {
         kind: PassKind::Global {
             store_caustic: !caustic_pass,
@@ -185,6 +199,7 @@ pub fn trace_photons(
         let e = scene.lights[l].emit(rng);
         Some((e, p))
     });
+    let global_seconds = t0.elapsed().as_secs_f64();
     let nc = if caustic_pass { settings.caustic_photons } else { 0 };
     if nc > 0 {
         let pass = Pass {
@@ -205,12 +220,19 @@ pub fn trace_photons(
         caustic_targets: targets.targets.len(),
         stored: photons.len(),
         bytes: photons.len() * std::mem::size_of::<Photon>(),
+        global_seconds,
+        caustic_seconds: t0.elapsed().as_secs_f64() - global_seconds,
         ..Default::default()
     };
     for p in &photons {
+        let power = crate::luminance(p.power()) as f64;
+        stats.stored_power += power;
         match p.kind() {
             PhotonKind::Direct => stats.direct += 1,
-            PhotonKind::Caustic => stats.caustic += 1,
+            PhotonKind::Caustic => {
+                stats.caustic += 1;
+                stats.caustic_power += power;
+            }
             PhotonKind::Indirect => stats.indirect += 1,
         }
     }
