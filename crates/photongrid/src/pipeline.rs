@@ -7,7 +7,7 @@
 use crate::accel::Accel;
 use crate::estimate::{Accumulation, Estimator, IrradianceCache, PassGrids, PhotonMap};
 use crate::film::Film;
-use crate::grid::multiscale::{MultiscaleGrids, MultiscaleParams};
+use crate::grid::multiscale::{MultiscaleGrids, MultiscaleParams, Probes};
 use crate::grid::PlaneGrids;
 use crate::grid::{GridParams, Grids};
 use crate::photon::{trace_photons, Photon, PhotonKind, PhotonStats, TraceSettings};
@@ -876,8 +876,11 @@ impl GridState {
                         max_radius: settings.max_radius * scene.bounds.diagonal(),
                         ..MultiscaleParams::default()
                     };
-                    let buried = |p: glam::Vec3, n: glam::Vec3| inside_solid(scene, accel, p, n);
-                    let g = MultiscaleGrids::build(set, &tris, photons, triangles, &params, &buried);
+                    let probes = Probes {
+                        buried: &|p, n| inside_solid(scene, accel, p, n),
+                        clearance: &|p, n| clearance(scene, accel, p, n, params.max_radius),
+                    };
+                    let g = MultiscaleGrids::build(set, &tris, photons, triangles, &params, &probes);
                     for line in g.describe() {
                         tracing::info!("{line}");
                     }
@@ -891,6 +894,20 @@ impl GridState {
         self.paper.as_ref().map(Grids::memory_bytes).unwrap_or(0)
             + self.multiscale.as_ref().map(MultiscaleGrids::memory_bytes).unwrap_or(0)
     }
+}
+
+/// The open space in front of a surface point `p` with front normal `n`, up to `reach`: the
+/// nearest surface along the normal and four directions 45° off it (a shelf board standing
+/// out of a wall above the point is met by the ray leaning up).
+fn clearance(scene: &Scene, accel: &Accel, p: glam::Vec3, n: glam::Vec3, reach: f32) -> f32 {
+    let eps = crate::surface::offset_eps(p.abs().max_element(), scene.bounds.diagonal());
+    let (u, v) = crate::sampling::basis(n);
+    let o = p + n * eps;
+    [n, n + u, n - u, n + v, n - v]
+        .iter()
+        .filter_map(|&d| accel.intersect(o, d.normalize(), reach))
+        .map(|hit| hit.t)
+        .fold(f32::INFINITY, f32::min)
 }
 
 /// Whether a point of a surface with front normal `n` lies inside a closed solid resting on
