@@ -31,6 +31,11 @@ pub(crate) mod test_util;
 /// Linear RGB in Rec.709 primaries (radiance, flux or reflectance depending on context).
 pub type Rgb = glam::Vec3;
 
+/// Luminance of a linear Rec. 709 colour.
+pub fn luminance(c: Rgb) -> f32 {
+    c.dot(Rgb::new(0.2126, 0.7152, 0.0722))
+}
+
 pub use pipeline::{prepare, render_camera, PhaseTimes, Prepared, RenderError};
 pub use scene::gltf::{load, LoadError};
 pub use settings::Settings;

@@ -7,14 +7,14 @@
 use crate::accel::Accel;
 use crate::estimate::{Accumulation, Estimator, IrradianceCache, PassGrids, PhotonMap};
 use crate::film::Film;
-use crate::grid::multiscale::{MultiscaleGrids, MultiscaleParams};
+use crate::grid::multiscale::{MultiscaleGrids, MultiscaleParams, Probes};
 use crate::grid::PlaneGrids;
 use crate::grid::{GridParams, Grids};
 use crate::photon::{trace_photons, Photon, PhotonKind, PhotonStats, TraceSettings};
 use crate::progress::Progress;
 use crate::render::budget::{corrected, plan, Costs, PassSize, Plan, PLANNED_PASSES, REPLANNED_PASSES};
 use crate::render::progressive::{Accumulator, Budget, Stop};
-use crate::render::{CameraPass, PhotonData, RenderSettings};
+use crate::render::{CameraPass, Cut, PhotonData, RenderSettings};
 use crate::sampling::pass_seed;
 use crate::scene::{Camera, Scene};
 use crate::settings::{DirectLighting, Settings, SettingsError};
@@ -129,6 +129,10 @@ pub struct PassReport {
     /// Passes given up at the time budget's deadline (their work is lost).
     #[serde(default)]
     pub dropped: u32,
+    /// Samples per pixel a pass cut at the deadline gave up (it keeps the ones it completed),
+    /// summed over cameras.
+    #[serde(default)]
+    pub samples_cut: u32,
 }
 
 /// Memory use.
@@ -371,7 +375,7 @@ fn caustic_photons(scene: &Scene, settings: &Settings) -> usize {
 /// counted from `request.start` ([`Budget`]; neither given: one pass), or the progress observer
 /// asks to stop ([`Progress::should_stop`], polled between passes). With a time budget the
 /// passes are sized by a probe first ([`plan_passes`]) and a camera pass still running at the
-/// deadline is dropped. The same seed and pass count give the same images whatever the thread
+/// deadline keeps the sweeps it completed (none: dropped; the first always keeps one). The same seed and pass count give the same images whatever the thread
 /// count. Each pass's photons serve every camera, then are dropped. `checkpoint` writes the
 /// images so far every `every` seconds, except after the last pass (the caller writes the
 /// final images).
@@ -421,18 +425,15 @@ pub fn render(
         }
         let t = Instant::now();
         let before = report.seconds.clone();
-        if !run.pass(done, progress, &mut report) {
-            report.passes.dropped = 1;
-            break Stop::Time;
-        }
-        if run.filled {
-            report.passes.count += 1;
-            report.passes.seconds.push(t.elapsed().as_secs_f64());
-            break Stop::Time;
-        }
+        let complete = run.pass(done, progress, &mut report);
         last = t.elapsed().as_secs_f64();
-        report.passes.seconds.push(last);
-        report.passes.count += 1;
+        if report.passes.dropped == 0 {
+            report.passes.seconds.push(last);
+            report.passes.count += 1;
+        }
+        if !complete || run.filled {
+            break Stop::Time;
+        }
         if let (0, Some(b)) = (done, report.budget.as_mut()) {
             let left = budget.time.unwrap_or(0.0) - start.elapsed().as_secs_f64();
             if let Some(next) = run.replan(b, left, &before, &report.seconds) {
@@ -514,7 +515,8 @@ impl<'a> PassLoop<'a> {
     }
 
     /// Trace pass `done`'s photons and add the pass to every camera. False when a camera's
-    /// pass ran into the deadline and was dropped (never the first pass: it is the image).
+    /// pass ran into the deadline: cut after its first sweeps (`samples_cut`) or dropped
+    /// (`dropped`; never the first pass's first sweep: it is the image).
     fn pass(&mut self, done: u32, progress: &Progress<'_>, report: &mut RenderReport) -> bool {
         let (scene, accel, settings) = (self.scene, self.accel, &self.settings);
         let times = &mut report.seconds;
@@ -525,21 +527,31 @@ impl<'a> PassLoop<'a> {
             estimator: Estimator::for_pass(settings, done, &photons.map, self.grids.view()),
             irradiance: photons.irradiance.as_ref(),
         };
-        let deadline = self.deadline.filter(|_| done > 0);
+        let cut = Cut {
+            deadline: self.deadline,
+            required: u32::from(done == 0),
+        };
+        let mut complete = true;
         for (i, (camera, acc)) in self.cameras.iter().zip(&mut self.accs).enumerate() {
             let job = PassJob {
                 pass: done,
-                deadline,
+                cut,
                 weight: self.weight,
             };
-            let (seconds, added) = render_pass(scene, accel, input, job, camera, settings, acc, progress);
+            let (seconds, samples) = render_pass(scene, accel, input, job, camera, settings, acc, progress);
             self.render_seconds[i] += seconds;
             times.render += seconds;
-            if !added {
+            let spp = settings.spp.max(1);
+            if samples == 0 {
+                report.passes.dropped = 1;
                 return false;
             }
+            if samples < spp {
+                report.passes.samples_cut += spp - samples;
+                complete = false;
+            }
         }
-        true
+        complete
     }
 
     /// Make the next pass a smaller last one that fits in the `left` seconds, when the regular
@@ -621,6 +633,10 @@ impl<'a> PassLoop<'a> {
 /// Photon paths of a probe pass: this share of the requested ones, at least [`PROBE_MIN_PATHS`].
 const PROBE_SHARE: usize = 32;
 const PROBE_MIN_PATHS: usize = 10_000;
+/// A camera sample costs more with a pass's full photon map than with the probe's sparse one
+/// (larger maps miss the caches): the first pass's measured camera seconds over the probe's
+/// prediction, median over the public cameras (docs/time_budget.md).
+const PROBE_CAMERA_BIAS: f64 = 1.3;
 /// The probe's camera pass renders this many times fewer pixels along each axis.
 const PROBE_SHRINK: u32 = 8;
 
@@ -701,6 +717,19 @@ pub fn plan_passes(
     }
 }
 
+/// Wall seconds per global and per caustic photon path, from a probe pass: each kind's
+/// tracing time, plus the time after tracing (irradiance, index) shared by stored photons.
+fn path_costs(stats: &PhotonStats, times: &PhaseTimes, probe: &PassSize) -> (f64, f64) {
+    let traced = stats.global_seconds + stats.caustic_seconds;
+    let rest = (times.photons - traced).max(0.0) + times.irradiance + times.build;
+    let caustic_share = stats.caustic as f64 / stats.stored.max(1) as f64;
+    let per = |seconds: f64, paths: usize| if paths > 0 { seconds / paths as f64 } else { 0.0 };
+    (
+        per(stats.global_seconds + rest * (1.0 - caustic_share), probe.photons),
+        per(stats.caustic_seconds + rest * caustic_share, probe.caustic_photons),
+    )
+}
+
 /// The probe of [`plan_passes`]: a pass of a small share of the `requested` photons, then each
 /// camera at a reduced resolution without and with final gathering, each timed.
 fn probe_costs(
@@ -763,12 +792,15 @@ fn probe_costs(
     }
     let samples = samples.max(1) as f64;
     let gather_rays = samples * probe.gather.max(1) as f64;
+    let (per_path, per_caustic_path) = path_costs(&photons.stats, &scratch, &probe);
     Costs {
         per_pass: scratch.grids,
-        per_path: (scratch.photons + scratch.irradiance + scratch.build) / probe.paths().max(1) as f64,
-        per_sample: plain / samples,
+        per_path,
+        per_caustic_path,
+        caustic_share: photons.stats.caustic_power / photons.stats.stored_power.max(f64::MIN_POSITIVE),
+        per_sample: PROBE_CAMERA_BIAS * plain / samples,
         per_gather_ray: if probe.gather > 0 {
-            (gathered - plain).max(0.0) / gather_rays
+            PROBE_CAMERA_BIAS * (gathered - plain).max(0.0) / gather_rays
         } else {
             0.0
         },
@@ -845,8 +877,11 @@ impl GridState {
                         max_radius: settings.max_radius * scene.bounds.diagonal(),
                         ..MultiscaleParams::default()
                     };
-                    let buried = |p: glam::Vec3, n: glam::Vec3| inside_solid(scene, accel, p, n);
-                    let g = MultiscaleGrids::build(set, &tris, photons, triangles, &params, &buried);
+                    let probes = Probes {
+                        buried: &|p, n| inside_solid(scene, accel, p, n),
+                        clearance: &|p, n| clearance(scene, accel, p, n, params.max_radius),
+                    };
+                    let g = MultiscaleGrids::build(set, &tris, photons, triangles, &params, &probes);
                     for line in g.describe() {
                         tracing::info!("{line}");
                     }
@@ -860,6 +895,20 @@ impl GridState {
         self.paper.as_ref().map(Grids::memory_bytes).unwrap_or(0)
             + self.multiscale.as_ref().map(MultiscaleGrids::memory_bytes).unwrap_or(0)
     }
+}
+
+/// The open space in front of a surface point `p` with front normal `n`, up to `reach`: the
+/// nearest surface along the normal and four directions 45° off it (a shelf board standing
+/// out of a wall above the point is met by the ray leaning up).
+fn clearance(scene: &Scene, accel: &Accel, p: glam::Vec3, n: glam::Vec3, reach: f32) -> f32 {
+    let eps = crate::surface::offset_eps(p.abs().max_element(), scene.bounds.diagonal());
+    let (u, v) = crate::sampling::basis(n);
+    let o = p + n * eps;
+    [n, n + u, n - u, n + v, n - v]
+        .iter()
+        .filter_map(|&d| accel.intersect(o, d.normalize(), reach))
+        .map(|hit| hit.t)
+        .fold(f32::INFINITY, f32::min)
 }
 
 /// Whether a point of a surface with front normal `n` lies inside a closed solid resting on
@@ -1053,12 +1102,12 @@ fn render_settings(camera: &Camera, settings: &Settings, pass: u32) -> RenderSet
 #[derive(Clone, Copy)]
 struct PassJob {
     pass: u32,
-    deadline: Option<Instant>,
+    cut: Cut,
     weight: f32,
 }
 
-/// Add pass `pass` of `camera` to `acc` (dropped if still running at `deadline`); returns its
-/// seconds and whether it was added.
+/// Add pass `pass` of `camera` to `acc` (cut at `job.cut`); returns its seconds and the
+/// samples per pixel added (0: dropped).
 #[allow(clippy::too_many_arguments)]
 fn render_pass(
     scene: &Scene,
@@ -1069,11 +1118,11 @@ fn render_pass(
     settings: &Settings,
     acc: &mut Accumulator,
     progress: &Progress<'_>,
-) -> (f64, bool) {
-    let PassJob { pass, deadline, weight } = job;
+) -> (f64, u32) {
+    let PassJob { pass, cut, weight } = job;
     let rs = render_settings(camera, settings, pass);
     progress.camera(&camera.name);
-    let phase = progress.phase("render", rs.height as u64);
+    let phase = progress.phase("render", rs.height as u64 * rs.spp.max(1) as u64);
     let added = {
         let _s = tracing::info_span!(
             "render",
@@ -1090,7 +1139,7 @@ fn render_pass(
             camera,
             settings: &rs,
         };
-        acc.add_pass(camera_pass, &|n| phase.inc(n as u64), deadline, weight)
+        acc.add_pass(camera_pass, &|n| phase.inc(n as u64), cut, weight)
     };
     (phase.finish(), added)
 }
@@ -1149,7 +1198,10 @@ pub fn render_camera(
     };
     let job = PassJob {
         pass: 0,
-        deadline: None,
+        cut: Cut {
+            deadline: None,
+            required: 0,
+        },
         weight: 1.0,
     };
     render_pass(scene, &prepared.accel, input, job, camera, settings, &mut acc, progress);

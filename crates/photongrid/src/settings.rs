@@ -61,7 +61,9 @@ pub struct Settings {
     /// Filtered photons per grid cell below which the kNN radius is used (shadows).
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Estimate", default_value_t = Settings::default().shadow_count))]
     pub shadow_count: f32,
-    /// Largest photon gather radius, as a fraction of the scene's bounding-box diagonal.
+    /// Largest kNN search radius, as a fraction of the scene's bounding-box diagonal (searches
+    /// also stop at three times the radius that holds k photons at the map's mean density).
+    /// Where fewer than k photons lie closer, the estimate uses those within it.
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Estimate", default_value_t = Settings::default().max_radius))]
     #[serde(alias = "max_radius_rel")]
     pub max_radius: f32,
@@ -89,10 +91,14 @@ pub struct Settings {
     /// standard deviations of every finer one (higher: smoother, more blur).
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", default_value_t = Settings::default().ici_threshold))]
     pub ici_threshold: f32,
+    /// Multiscale estimate: the same for caustic photons (lower: caustic filaments stay
+    /// sharper, at some grain).
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", default_value_t = Settings::default().caustic_ici_threshold))]
+    pub caustic_ici_threshold: f32,
     /// Multiscale estimate: photons per finest cell where a plane's photons are densest.
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", default_value_t = Settings::default().cell_photons))]
     pub cell_photons: f32,
-    /// Multiscale estimate: finest cells over all planes (about 54 bytes each).
+    /// Multiscale estimate: finest cells over all planes (about 75 bytes each).
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", value_parser = parse_count, default_value_t = Settings::default().grid_cells))]
     #[serde(deserialize_with = "count::deserialize")]
     pub grid_cells: usize,
@@ -258,6 +264,7 @@ impl Default for Settings {
             wavelet_levels: 4,
             grid_quantity: GridQuantity::Count,
             ici_threshold: 2.0,
+            caustic_ici_threshold: 1.25,
             cell_photons: 2.0,
             grid_cells: 4 << 20,
             light_samples: 4,
@@ -345,6 +352,9 @@ impl Settings {
         }
         if !(self.ici_threshold > 0.0 && self.ici_threshold.is_finite()) {
             return Err(e("ici_threshold", "must be a positive number"));
+        }
+        if !(self.caustic_ici_threshold > 0.0 && self.caustic_ici_threshold.is_finite()) {
+            return Err(e("caustic_ici_threshold", "must be a positive number"));
         }
         if !(self.cell_photons > 0.0 && self.cell_photons.is_finite()) {
             return Err(e("cell_photons", "must be a positive number"));

@@ -84,9 +84,9 @@ fn a_budget_already_spent_still_gives_one_complete_pass_and_no_more() {
 }
 
 #[test]
-fn a_camera_pass_past_its_deadline_is_given_up() {
+fn a_camera_pass_past_its_deadline_keeps_its_required_sweeps_only() {
     use photongrid::estimate::Estimator;
-    use photongrid::render::{render_until, CameraPass, PhotonData, RenderSettings};
+    use photongrid::render::{render, render_until, CameraPass, Cut, PhotonData, RenderSettings};
     let scene = scene();
     let settings = small();
     let prepared = photongrid::prepare(&scene, &settings, &Progress::quiet(), &mut Default::default()).unwrap();
@@ -97,7 +97,7 @@ fn a_camera_pass_past_its_deadline_is_given_up() {
     let rs = RenderSettings {
         width: 32,
         height: 24,
-        spp: 1,
+        spp: 3,
         direct: settings.direct,
         light_samples: settings.light_samples,
         max_specular_depth: settings.max_specular_depth,
@@ -114,8 +114,19 @@ fn a_camera_pass_past_its_deadline_is_given_up() {
         camera,
         settings: &rs,
     };
-    assert!(render_until(pass, &|_| {}, past).is_none());
+    let cut = |deadline, required| Cut { deadline, required };
+    assert!(
+        render_until(pass, &|_| {}, cut(past, 0)).is_none(),
+        "nothing required: dropped"
+    );
+    let first = render_until(pass, &|_| {}, cut(past, 1)).expect("the first sweep is required");
+    assert_eq!(first.samples, 1);
+    assert!(first.film.mean()[1] > 0.0);
     let later = Some(Instant::now() + Duration::from_secs(3600));
-    let film = render_until(pass, &|_| {}, later).expect("in time");
-    assert!(film.mean()[1] > 0.0);
+    let whole = render_until(pass, &|_| {}, cut(later, 1)).expect("in time");
+    assert_eq!(whole.samples, 3);
+    // Sweeps add up to the same image as a pass without a deadline, and one sweep differs.
+    let plain = render(pass, &|_| {});
+    assert_eq!(whole.film.color, plain.color);
+    assert_ne!(first.film.color, plain.color);
 }

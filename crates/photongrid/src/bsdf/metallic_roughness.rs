@@ -22,14 +22,9 @@
 
 use super::ggx;
 use crate::sampling;
-use crate::Rgb;
+use crate::{luminance, Rgb};
 use glam::{Vec2, Vec3};
 use std::f32::consts::FRAC_1_PI;
-
-/// Luminance weights (Rec. 709) for choosing lobes.
-fn luminance(c: Rgb) -> f32 {
-    c.dot(Rgb::new(0.2126, 0.7152, 0.0722))
-}
 
 /// Schlick's Fresnel `f0 + (1 − f0)(1 − cosθ)⁵` (glTF spec, B.3.4).
 pub fn schlick(f0: Rgb, cos: f32) -> Rgb {

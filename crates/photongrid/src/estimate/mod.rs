@@ -23,6 +23,7 @@ use crate::settings::{Method, Settings};
 use crate::spatial::KnnBuffer;
 use density::{assumed_radius, blended_radius, progressive_neighbours};
 use glam::Vec3;
+pub use multiscale::Gammas;
 
 /// How a camera's image accumulates over progressive passes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -136,8 +137,8 @@ pub enum Estimator<'a> {
         grids: Option<&'a MultiscaleGrids>,
         /// Neighbours of the kNN fallback.
         k: usize,
-        /// Confidence-interval width in standard deviations.
-        gamma: f32,
+        /// Confidence-interval widths in standard deviations.
+        gamma: Gammas,
         /// Direct light comes from photons (the single-map setting).
         direct: bool,
         /// Final gathering is on: near plane edges it supplies indirect light.
@@ -164,7 +165,10 @@ impl<'a> Estimator<'a> {
                 map,
                 grids: grids.multiscale,
                 k,
-                gamma: settings.ici_threshold,
+                gamma: Gammas {
+                    global: settings.ici_threshold,
+                    caustic: settings.caustic_ici_threshold,
+                },
                 direct: settings.direct == crate::settings::DirectLighting::Photons,
                 gathering: settings.effective_gather() > 0,
             },

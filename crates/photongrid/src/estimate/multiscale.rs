@@ -13,7 +13,7 @@
 
 use super::photon_map::Gather;
 use super::Query;
-use crate::grid::multiscale::{LayerTexture, MultiscaleGrids, ScaleEstimate, CAUSTIC, DIRECT, INDIRECT};
+use crate::grid::multiscale::{LayerTexture, MultiscaleGrids, ScaleEstimate, Texel, CAUSTIC, DIRECT, INDIRECT};
 use crate::Rgb;
 use glam::Vec3;
 use std::f32::consts::PI;
@@ -36,6 +36,46 @@ pub struct LayerEstimate {
     pub count: f32,
 }
 
+/// The local-linear fit of a kernel's sums (moments about the query point, fine cells):
+/// irradiance = a + b·x fitted to the light under the kernel, and a read at the point.
+/// Returns the factor taking the kernel's plain mean to `a`, and the factor on its variance
+/// (the leverage 1 + x̄ᵀ C⁻¹ x̄ of a point `x̄` away from the covered area's centroid, C the
+/// area's covariance). A kernel centred on its covered area gets (1, 1); one that reaches past
+/// a plane's edge or into a buried footprint no longer mistakes the light's gradient for its
+/// level. `side` is the kernel's texel side (fine cells): the covariance is regularised at a
+/// hundredth of its square so that a kernel over a thin strip does not tilt across it.
+pub fn local_linear(t: &Texel, side: f32) -> (f32, f32) {
+    let m0 = t.area;
+    let f0 = luminance(t.flux);
+    if !(m0 > 0.0) || !(f0 > 0.0) {
+        return (1.0, 1.0);
+    }
+    let c = [t.area_moment[0] / m0, t.area_moment[1] / m0];
+    let reg = 0.01 * side * side;
+    let cxx = t.area_moment2[0] / m0 - c[0] * c[0] + reg;
+    let cxy = t.area_moment2[1] / m0 - c[0] * c[1];
+    let cyy = t.area_moment2[2] / m0 - c[1] * c[1] + reg;
+    let det = cxx * cyy - cxy * cxy;
+    if !(det > 0.0) {
+        return (1.0, 1.0);
+    }
+    let inv = [cyy / det, -cxy / det, cxx / det];
+    // The flux's first moment about the area's centroid, then the slope b = C⁻¹ g / m0.
+    let g = [t.flux_moment[0] - c[0] * f0, t.flux_moment[1] - c[1] * f0];
+    let b = [
+        (inv[0] * g[0] + inv[1] * g[1]) / m0,
+        (inv[1] * g[0] + inv[2] * g[1]) / m0,
+    ];
+    let mean = f0 / m0;
+    let a = mean - (b[0] * c[0] + b[1] * c[1]);
+    let leverage = 1.0 + c[0] * (inv[0] * c[0] + inv[1] * c[1]) + c[1] * (inv[1] * c[0] + inv[2] * c[1]);
+    ((a / mean).clamp(0.0, MAX_TILT), leverage)
+}
+
+/// The most a local-linear fit may raise a kernel's mean: beyond it the fit extrapolates
+/// noise.
+const MAX_TILT: f32 = 4.0;
+
 /// The estimate at the widest scale whose confidence interval meets every finer one's.
 /// `floor` is one photon's variance (an empty kernel is not certain to be dark), `passes`
 /// divides the accumulated sums.
@@ -52,9 +92,10 @@ pub fn choose_scale(
         if !(t.area > 0.0) {
             continue;
         }
-        let norm = 1.0 / (t.area * passes);
+        let (tilt, leverage) = local_linear(&t, (1u32 << s.level) as f32);
+        let norm = tilt / (t.area * passes);
         let e = luminance(t.flux) * norm;
-        let sigma = (t.var + floor).sqrt() * norm;
+        let sigma = ((t.var + floor) * leverage).sqrt() / (t.area * passes);
         lo = lo.max(e - gamma * sigma);
         hi = hi.min(e + gamma * sigma);
         if lo > hi {
@@ -70,6 +111,28 @@ pub fn choose_scale(
     best
 }
 
+/// The confidence-interval widths (standard deviations) of the scale choice: caustics are
+/// filaments and sharp outlines, where a narrower interval keeps them sharp and costs less
+/// than it does in smooth global light.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Gammas {
+    /// Direct and indirect layers.
+    pub global: f32,
+    /// The caustic layer.
+    pub caustic: f32,
+}
+
+impl Gammas {
+    /// The width for photon layer `layer`.
+    pub fn of(self, layer: usize) -> f32 {
+        if layer == CAUSTIC {
+            self.caustic
+        } else {
+            self.global
+        }
+    }
+}
+
 /// Share of a kernel's span that must lie on the surface for its indirect estimate to be
 /// used; below it the point is near the plane's edge and final gathering supplies indirect
 /// light.
@@ -81,31 +144,41 @@ pub const INTERIOR_COVERAGE: f32 = 0.9;
 const MIN_INDIRECT_PHOTONS: f32 = 64.0;
 
 impl MultiscaleGrids {
-    /// One layer's estimate at `p` of the plane texture `tex`.
-    pub fn layer_estimate(&self, tex: &[LayerTexture], layer: usize, p: Vec3, gamma: f32) -> Option<LayerEstimate> {
+    /// One layer's estimate at `p` of the plane texture `tex`. No kernel reaches farther than
+    /// the open space in front of the surface it covers (indirect layer: light next to a shelf
+    /// board standing out of a wall is not that of the wall across it).
+    pub fn layer_estimate(&self, tex: &[LayerTexture], layer: usize, p: Vec3, gamma: Gammas) -> Option<LayerEstimate> {
         let floor = self.mean_power[layer] * self.mean_power[layer];
         let t = &tex[layer];
         let within = t
             .scales(p)
-            .take_while(|s| s.level == 0 || t.kernel_reach(s.level) <= self.max_radius);
-        choose_scale(within, gamma, floor, self.passes.max(1) as f32)
+            .take_while(|s| s.level == 0 || t.kernel_reach(s.level) <= self.max_radius.min(s.texel.clearance));
+        choose_scale(within, gamma.of(layer), floor, self.passes.max(1) as f32)
     }
 
-    /// One layer's estimate at `p` from kernels lying (almost) wholly on the plane: near an
-    /// edge the scale stops before the kernel reaches past it.
-    pub fn interior_estimate(&self, tex: &[LayerTexture], layer: usize, p: Vec3, gamma: f32) -> Option<LayerEstimate> {
+    /// One layer's estimate at `p` from kernels lying (almost) wholly on the plane and no
+    /// wider than the open space in front of it: near an edge, or something standing on or
+    /// near the plane, the scale stops before the kernel reaches past it.
+    pub fn interior_estimate(
+        &self,
+        tex: &[LayerTexture],
+        layer: usize,
+        p: Vec3,
+        gamma: Gammas,
+    ) -> Option<LayerEstimate> {
         let floor = self.mean_power[layer] * self.mean_power[layer];
         let t = &tex[layer];
         let inside = t
             .scales(p)
             .take_while(|s| s.level == 0 || t.kernel_reach(s.level) <= self.max_radius)
-            .take_while(|s| s.texel.area >= INTERIOR_COVERAGE * t.kernel_area(s.level));
-        choose_scale(inside, gamma, floor, self.passes.max(1) as f32)
+            .take_while(|s| s.texel.area >= INTERIOR_COVERAGE * t.kernel_area(s.level))
+            .take_while(|s| t.kernel_reach(s.level) <= s.texel.clearance);
+        choose_scale(inside, gamma.of(layer), floor, self.passes.max(1) as f32)
     }
 
     /// Total irradiance (every layer) at a point on a plane, for final-gather rays; None off
     /// the planes.
-    pub fn irradiance(&self, triangle: u32, p: Vec3, gamma: f32) -> Option<Rgb> {
+    pub fn irradiance(&self, triangle: u32, p: Vec3, gamma: Gammas) -> Option<Rgb> {
         let tex = self.texture_of(triangle)?;
         Some(
             [CAUSTIC, INDIRECT, DIRECT]
@@ -120,7 +193,7 @@ impl MultiscaleGrids {
 /// The photons' irradiance at a visible point `q` as a [`Gather`] (flux over a disc of the
 /// kernel's area): caustics always, direct light when `direct` (the single-map setting), and
 /// indirect light unless final gathering (`gathering`) does better here. None off the planes.
-pub fn gather(grids: &MultiscaleGrids, q: &Query, gamma: f32, direct: bool, gathering: bool) -> Option<Gather> {
+pub fn gather(grids: &MultiscaleGrids, q: &Query, gamma: Gammas, direct: bool, gathering: bool) -> Option<Gather> {
     let tex = grids.texture_of(q.triangle)?;
     let mut e = Rgb::ZERO;
     let (mut area, mut count) = (0.0f32, 0.0f32);
@@ -165,7 +238,6 @@ pub fn gather(grids: &MultiscaleGrids, q: &Query, gamma: f32, direct: bool, gath
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::grid::multiscale::Texel;
 
     fn scale(level: usize, flux: f32, var: f32, area: f32) -> ScaleEstimate {
         ScaleEstimate {
@@ -175,6 +247,7 @@ mod tests {
                 var,
                 count: 0.0,
                 area,
+                ..Texel::default()
             },
         }
     }
@@ -199,5 +272,65 @@ mod tests {
         let e = choose_scale(edge.iter().copied(), 2.0, 0.0, 1.0).unwrap();
         assert_eq!((e.area, e.level), (16.0, 2));
         assert!((e.irradiance.x - 1.0).abs() < 1e-6);
+    }
+
+    /// A field rising linearly with x, sampled by photons on a 2 m square: at the square's
+    /// corners and edges (one-sided kernels) the local-linear fit reads the level at the
+    /// point, not the kernel's mean, which lies towards the square's inside.
+    #[test]
+    fn a_gradient_at_the_plane_edge_is_read_at_the_point() {
+        use crate::grid::multiscale::{MultiscaleParams, Probes};
+        use crate::grid::planes::{detect_planes, PlaneParams};
+        use crate::photon::{Photon, PhotonKind};
+        use crate::sampling::Rng;
+        let p = |x: f32, z: f32| Vec3::new(x, 0.0, z);
+        let tris = vec![
+            [p(0.0, 0.0), p(0.0, 2.0), p(2.0, 2.0)],
+            [p(0.0, 0.0), p(2.0, 2.0), p(2.0, 0.0)],
+        ];
+        let set = detect_planes(&tris, &PlaneParams::default());
+        let mut rng = Rng::keyed(5, 2, 7);
+        // Irradiance 1 + x W/m²: 8 W over the square.
+        let n = 400_000;
+        let power = Rgb::splat(8.0 / n as f32);
+        let (mut photons, mut tri) = (Vec::new(), Vec::new());
+        while photons.len() < n {
+            let (x, z) = (rng.uniform() * 2.0, rng.uniform() * 2.0);
+            if rng.uniform() * 3.0 > 1.0 + x {
+                continue;
+            }
+            photons.push(Photon::new(p(x, z), power, Vec3::Y, Vec3::Y, PhotonKind::Direct));
+            tri.push(if z > x { 0 } else { 1 });
+        }
+        let probes = Probes {
+            buried: &|_, _| false,
+            clearance: &|_, _| f32::INFINITY,
+        };
+        let params = MultiscaleParams {
+            max_radius: 0.5,
+            ..MultiscaleParams::default()
+        };
+        let g = MultiscaleGrids::build(set, &tris, &photons, &tri, &params, &probes);
+        let gammas = Gammas {
+            global: 2.0,
+            caustic: 2.0,
+        };
+        for q in [
+            p(0.002, 0.002),
+            p(1.998, 1.0),
+            p(0.002, 1.0),
+            p(1.0, 1.998),
+            p(1.0, 1.0),
+        ] {
+            let e = g.layer_estimate(&g.textures[0], DIRECT, q, gammas).unwrap();
+            let truth = 1.0 + q.x;
+            let err = e.irradiance.x / truth - 1.0;
+            assert!(
+                err.abs() < 0.04,
+                "{q}: {} W/m² against {truth} (level {})",
+                e.irradiance.x,
+                e.level
+            );
+        }
     }
 }

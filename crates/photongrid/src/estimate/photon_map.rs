@@ -50,6 +50,13 @@ pub struct Gather {
     pub needs_gathering: bool,
 }
 
+/// How far, in mean kNN radii (the radius holding k photons at the map's mean density over the
+/// surfaces it covers), a query may grow. Where photons are sparser than that (small objects,
+/// shadows, dim corners) the estimate uses the photons within this reach: a wider search
+/// scanned photons of other surfaces for most of a camera pass on scenes of small objects
+/// without changing the image (docs/time_budget.md).
+pub const SPARSE_REACH: f32 = 3.0;
+
 /// The photons of one render, indexed for neighbour queries.
 pub struct PhotonMap {
     grid: PointGrid<Photon>,
@@ -64,11 +71,13 @@ pub(crate) fn faces(n: Vec3, normal: Vec3) -> bool {
 }
 
 impl PhotonMap {
-    /// Index `photons` with cells sized for `k` neighbours on `surface_area` m².
+    /// Index `photons` with cells sized for `k` neighbours on `surface_area` m². Queries grow
+    /// to `max_radius` at most, and to [`SPARSE_REACH`] times the mean kNN radius.
     pub fn build(photons: Vec<Photon>, k: usize, surface_area: f32, max_radius: f32) -> Self {
-        let cell = cell_size_for(&photons, k, surface_area).min(max_radius.max(f32::MIN_POSITIVE));
+        let mean = cell_size_for(&photons, k, surface_area);
+        let max_radius = max_radius.min(SPARSE_REACH * mean).max(f32::MIN_POSITIVE);
         PhotonMap {
-            grid: PointGrid::build(photons, cell),
+            grid: PointGrid::build(photons, mean.min(max_radius)),
             max_radius,
         }
     }

@@ -22,8 +22,11 @@ fn luminance(c: Rgb) -> f32 {
     0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
 }
 
-/// Block sums over a cell or a block of cells.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+/// Block sums over a cell or a block of cells. The moments are about the texel's centre, in
+/// fine cells: with them a kernel fits a plane to the light instead of a constant, so a
+/// kernel that reaches past a plane's edge (a corner, the foot of a wall) or sits on a
+/// gradient is not biased by the light on its other side.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Texel {
     /// Σ photon flux (W), per channel.
     pub flux: [f32; 3],
@@ -33,16 +36,64 @@ pub struct Texel {
     pub count: f32,
     /// Surface area inside (m²).
     pub area: f32,
+    /// Σ luminance flux × offset (x, y).
+    pub flux_moment: [f32; 2],
+    /// ∫ offset dA over the surface inside (x, y).
+    pub area_moment: [f32; 2],
+    /// ∫ offset ⊗ offset dA over the surface inside (xx, xy, yy).
+    pub area_moment2: [f32; 3],
+    /// The least open space in front of the surface inside (m; indirect layer only): light
+    /// changes over about this distance next to something standing on or near the plane.
+    pub clearance: f32,
+}
+
+impl Default for Texel {
+    fn default() -> Self {
+        Texel {
+            flux: [0.0; 3],
+            var: 0.0,
+            count: 0.0,
+            area: 0.0,
+            flux_moment: [0.0; 2],
+            area_moment: [0.0; 2],
+            area_moment2: [0.0; 3],
+            clearance: f32::INFINITY,
+        }
+    }
 }
 
 impl Texel {
     fn add(&mut self, o: &Texel, w: f32) {
+        if w > 0.0 {
+            self.clearance = self.clearance.min(o.clearance);
+        }
         for c in 0..3 {
             self.flux[c] += w * o.flux[c];
+            self.area_moment2[c] += w * o.area_moment2[c];
+        }
+        for c in 0..2 {
+            self.flux_moment[c] += w * o.flux_moment[c];
+            self.area_moment[c] += w * o.area_moment[c];
         }
         self.var += w * w * o.var;
         self.count += w * o.count;
         self.area += w * o.area;
+    }
+
+    /// The same sums with moments about a point `d` (fine cells) away from the current
+    /// reference point, i.e. reference − new point = `d`.
+    fn shifted(&self, d: [f32; 2]) -> Texel {
+        let mut t = *self;
+        let lum = luminance(Rgb::from(self.flux));
+        let (m, a) = (self.area_moment, self.area);
+        for c in 0..2 {
+            t.flux_moment[c] += lum * d[c];
+            t.area_moment[c] += a * d[c];
+        }
+        t.area_moment2[0] += 2.0 * m[0] * d[0] + a * d[0] * d[0];
+        t.area_moment2[1] += m[0] * d[1] + m[1] * d[0] + a * d[0] * d[1];
+        t.area_moment2[2] += 2.0 * m[1] * d[1] + a * d[1] * d[1];
+        t
     }
 }
 
@@ -55,21 +106,25 @@ struct Level {
 }
 
 impl Level {
-    /// The next coarser level: sums of 2×2 blocks (a border block may have fewer cells).
-    fn coarser(&self) -> Level {
+    /// The next coarser level: sums of 2×2 blocks (a border block may have fewer cells);
+    /// `side` is this level's texel side in fine cells (moments move to the block's centre).
+    fn coarser(&self, side: f32) -> Level {
         let (w, h) = (self.w.div_ceil(2), self.h.div_ceil(2));
         let mut texels = vec![Texel::default(); w * h];
+        let half = |i: usize| if i % 2 == 0 { -0.5 * side } else { 0.5 * side };
         for y in 0..self.h {
             for x in 0..self.w {
-                texels[(y / 2) * w + x / 2].add(&self.texels[y * self.w + x], 1.0);
+                let child = self.texels[y * self.w + x].shifted([half(x), half(y)]);
+                texels[(y / 2) * w + x / 2].add(&child, 1.0);
             }
         }
         Level { w, h, texels }
     }
 
     /// Bilinear interpolation of the texels at continuous texel coordinates (centres at
-    /// i + 0.5), clamped to the texel centres.
-    fn bilinear(&self, x: f32, y: f32) -> Texel {
+    /// i + 0.5), clamped to the texel centres; moments about the point `(x, y)`, texels being
+    /// `side` fine cells wide.
+    fn bilinear(&self, x: f32, y: f32, side: f32) -> Texel {
         let axis = |g: f32, n: usize| {
             let t = (g - 0.5).clamp(0.0, (n - 1) as f32);
             let i0 = (t as usize).min(n - 1);
@@ -79,10 +134,14 @@ impl Level {
         let (i0, i1, fx) = axis(x, self.w);
         let (j0, j1, fy) = axis(y, self.h);
         let mut t = Texel::default();
-        t.add(&self.texels[j0 * self.w + i0], (1.0 - fx) * (1.0 - fy));
-        t.add(&self.texels[j0 * self.w + i1], fx * (1.0 - fy));
-        t.add(&self.texels[j1 * self.w + i0], (1.0 - fx) * fy);
-        t.add(&self.texels[j1 * self.w + i1], fx * fy);
+        let mut add = |i: usize, j: usize, w: f32| {
+            let d = [(i as f32 + 0.5 - x) * side, (j as f32 + 0.5 - y) * side];
+            t.add(&self.texels[j * self.w + i].shifted(d), w);
+        };
+        add(i0, j0, (1.0 - fx) * (1.0 - fy));
+        add(i1, j0, fx * (1.0 - fy));
+        add(i0, j1, (1.0 - fx) * fy);
+        add(i1, j1, fx * fy);
         t
     }
 }
@@ -118,17 +177,11 @@ pub struct LayerTexture {
 }
 
 impl LayerTexture {
-    fn new(plane: Plane, coverage: Vec<f32>) -> Self {
+    fn new(plane: Plane, coverage: Vec<Texel>) -> Self {
         let level = Level {
             w: plane.res_u,
             h: plane.res_v,
-            texels: coverage
-                .into_iter()
-                .map(|area| Texel {
-                    area,
-                    ..Texel::default()
-                })
-                .collect(),
+            texels: coverage,
         };
         LayerTexture {
             plane,
@@ -166,7 +219,7 @@ impl LayerTexture {
             let s = (1u32 << level) as f32;
             ScaleEstimate {
                 level,
-                texel: lv.bilinear(gx / s, gy / s),
+                texel: lv.bilinear(gx / s, gy / s, s),
             }
         })
     }
@@ -175,9 +228,14 @@ impl LayerTexture {
         let Some(cell) = self.plane.cell_of(p.pos(), f32::INFINITY) else {
             return;
         };
+        let (gx, gy) = self.plane.grid_coords(p.pos());
+        let w = self.levels[0].w;
+        let d = [gx - ((cell % w) as f32 + 0.5), gy - ((cell / w) as f32 + 0.5)];
         let t = &mut self.levels[0].texels[cell];
         let f = p.power();
         let lum = luminance(f);
+        t.flux_moment[0] += lum * d[0];
+        t.flux_moment[1] += lum * d[1];
         t.flux[0] += f.x;
         t.flux[1] += f.y;
         t.flux[2] += f.z;
@@ -192,7 +250,8 @@ impl LayerTexture {
             let l = self.levels.last().expect("level 0");
             l.w > 1 && l.h > 1
         } {
-            let next = self.levels.last().expect("level").coarser();
+            let side = (1u32 << (self.levels.len() - 1)) as f32;
+            let next = self.levels.last().expect("level").coarser(side);
             self.levels.push(next);
         }
     }
@@ -217,7 +276,7 @@ pub struct ScaleEstimate {
 /// What the multiscale textures are built with.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MultiscaleParams {
-    /// Fine cells in all, over every plane and layer (about 27 bytes each with the pyramid).
+    /// Fine cells in all, over every plane and layer (about 70 bytes each with the pyramid).
     pub cell_budget: usize,
     /// Photons per fine cell where a plane's photons are densest: sets the finest scale.
     pub photons_per_cell: f32,
@@ -254,6 +313,16 @@ pub struct MultiscaleGrids {
     pub max_radius: f32,
 }
 
+/// What the scene's geometry says about a point `p` of a plane with front normal `n`.
+pub struct Probes<'a> {
+    /// `p` lies inside a solid resting on the plane (under a box on the floor): such area
+    /// never receives light nor is seen, so it is not counted as surface.
+    pub buried: &'a (dyn Fn(Vec3, Vec3) -> bool + Sync),
+    /// The open space in front of `p` (m): how far a kernel may reach there before it spans
+    /// light that something standing near the plane changes.
+    pub clearance: &'a (dyn Fn(Vec3, Vec3) -> f32 + Sync),
+}
+
 /// Per fine cell of `plane`: a photon landed in it or in one of its eight neighbours.
 fn lit_cells(plane: &Plane, landed: &[Vec3]) -> Vec<bool> {
     let (w, h) = (plane.res_u, plane.res_v);
@@ -280,16 +349,14 @@ fn lit_cells(plane: &Plane, landed: &[Vec3]) -> Vec<bool> {
 
 impl MultiscaleGrids {
     /// Size every plane's layers from the first pass's photons (landing on `triangles[i]`)
-    /// and count them. `buried(p, n)` says whether the point `p` of a plane with normal `n`
-    /// lies inside a solid resting on it (under a box on the floor): such area never receives
-    /// light nor is seen, so it is not counted as surface.
+    /// and count them; `probes` find buried area and the clearance in front of the planes.
     pub fn build(
         set: PlaneSet,
         tris: &[[Vec3; 3]],
         photons: &[Photon],
         triangles: &[u32],
         params: &MultiscaleParams,
-        buried: &(dyn Fn(Vec3, Vec3) -> bool + Sync),
+        probes: &Probes<'_>,
     ) -> Self {
         let dims = fine_resolutions(&set, photons, triangles, params);
         // Where photons land, nothing rests on the plane: they veto the buried test, whose
@@ -313,8 +380,12 @@ impl MultiscaleGrids {
                     let mut area = coverage(&plane, tris);
                     let lit = lit_cells(&plane, landed);
                     for (cell, a) in area.iter_mut().enumerate() {
-                        if *a > 0.0 && !lit[cell] && buried(plane.cell_center(cell), plane.normal) {
-                            *a = 0.0;
+                        if a.area > 0.0 && !lit[cell] && (probes.buried)(plane.cell_center(cell), plane.normal) {
+                            *a = Texel::default();
+                        }
+                        // Only the camera's indirect estimate asks how far a kernel may reach.
+                        if l == INDIRECT && a.area > 0.0 {
+                            a.clearance = (probes.clearance)(plane.cell_center(cell), plane.normal);
                         }
                     }
                     LayerTexture::new(plane, area)
@@ -473,12 +544,13 @@ fn fine_resolutions(
         .collect()
 }
 
-/// Area of the plane's triangles inside each fine cell (m²), by clipping each triangle
-/// (projected into the plane's grid coordinates) against the cells it overlaps.
-fn coverage(plane: &Plane, tris: &[[Vec3; 3]]) -> Vec<f32> {
+/// Area of the plane's triangles inside each fine cell (m²) and its moments about the cell's
+/// centre, by clipping each triangle (projected into the plane's grid coordinates) against
+/// the cells it overlaps.
+fn coverage(plane: &Plane, tris: &[[Vec3; 3]]) -> Vec<Texel> {
     let (ru, rv) = (plane.res_u, plane.res_v);
     let cell_area = plane.cell_area();
-    let mut area = vec![0.0f32; ru * rv];
+    let mut area = vec![Texel::default(); ru * rv];
     for &t in &plane.triangles {
         let g: Vec<Vec2> = tris[t as usize]
             .iter()
@@ -505,20 +577,38 @@ fn coverage(plane: &Plane, tris: &[[Vec3; 3]]) -> Vec<f32> {
                 let whole = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]
                     .iter()
                     .all(|&(dx, dy)| inside(Vec2::new(x + dx, y + dy)));
-                let a = if whole { 1.0 } else { clipped_area(&g, x, y) };
-                area[j * ru + i] += a * cell_area;
+                let m = if whole { WHOLE_CELL } else { clipped_moments(&g, x, y) };
+                area[j * ru + i].add(&m, cell_area);
             }
         }
     }
     // Overlapping triangles (duplicates) must not count twice.
     for a in &mut area {
-        *a = a.min(cell_area);
+        if a.area > cell_area {
+            let k = cell_area / a.area;
+            a.area = cell_area;
+            a.area_moment = a.area_moment.map(|m| m * k);
+            a.area_moment2 = a.area_moment2.map(|m| m * k);
+        }
     }
     area
 }
 
-/// Area of the polygon `poly` inside the unit square `[x, x+1] × [y, y+1]` (Sutherland–Hodgman).
-fn clipped_area(poly: &[Vec2], x: f32, y: f32) -> f32 {
+/// A whole unit cell's area and moments about its centre.
+const WHOLE_CELL: Texel = Texel {
+    flux: [0.0; 3],
+    var: 0.0,
+    count: 0.0,
+    area: 1.0,
+    flux_moment: [0.0; 2],
+    area_moment: [0.0; 2],
+    area_moment2: [1.0 / 12.0, 0.0, 1.0 / 12.0],
+    clearance: f32::INFINITY,
+};
+
+/// Area and moments (about the square's centre) of the polygon `poly` inside the unit square
+/// `[x, x+1] × [y, y+1]` (Sutherland–Hodgman, then Green's theorem).
+fn clipped_moments(poly: &[Vec2], x: f32, y: f32) -> Texel {
     let mut p: Vec<Vec2> = poly.to_vec();
     let edges: [(Vec2, f32); 4] = [
         (Vec2::X, x),
@@ -528,7 +618,7 @@ fn clipped_area(poly: &[Vec2], x: f32, y: f32) -> f32 {
     ];
     for (n, d) in edges {
         if p.is_empty() {
-            return 0.0;
+            return Texel::default();
         }
         let mut out = Vec::with_capacity(p.len() + 2);
         for i in 0..p.len() {
@@ -543,12 +633,26 @@ fn clipped_area(poly: &[Vec2], x: f32, y: f32) -> f32 {
         }
         p = out;
     }
-    let mut s = 0.0;
+    let c = Vec2::new(x + 0.5, y + 0.5);
+    let (mut a, mut sx, mut sy, mut ixx, mut ixy, mut iyy) = (0.0f32, 0.0, 0.0, 0.0, 0.0, 0.0);
     for i in 0..p.len() {
-        let (a, b) = (p[i], p[(i + 1) % p.len()]);
-        s += a.x * b.y - a.y * b.x;
+        let (u, v) = (p[i] - c, p[(i + 1) % p.len()] - c);
+        let cr = u.x * v.y - v.x * u.y;
+        a += cr;
+        sx += (u.x + v.x) * cr;
+        sy += (u.y + v.y) * cr;
+        ixx += (u.x * u.x + u.x * v.x + v.x * v.x) * cr;
+        iyy += (u.y * u.y + u.y * v.y + v.y * v.y) * cr;
+        ixy += (u.x * v.y + 2.0 * u.x * u.y + 2.0 * v.x * v.y + v.x * u.y) * cr;
     }
-    0.5 * s.abs()
+    // Clockwise polygons give negative sums.
+    let sign = if a < 0.0 { -1.0 } else { 1.0 };
+    Texel {
+        area: 0.5 * a * sign,
+        area_moment: [sx * sign / 6.0, sy * sign / 6.0],
+        area_moment2: [ixx * sign / 12.0, ixy * sign / 24.0, iyy * sign / 12.0],
+        ..Texel::default()
+    }
 }
 
 #[cfg(test)]
@@ -568,9 +672,21 @@ mod tests {
     #[test]
     fn clipped_area_of_a_triangle() {
         let t = [Vec2::new(0.0, 0.0), Vec2::new(2.0, 0.0), Vec2::new(0.0, 2.0)];
-        assert!((clipped_area(&t, 0.0, 0.0) - 1.0).abs() < 1e-6);
-        assert!((clipped_area(&t, 1.0, 0.0) - 0.5).abs() < 1e-6);
-        assert_eq!(clipped_area(&t, 1.0, 1.0), 0.0);
+        let whole = clipped_moments(&t, 0.0, 0.0);
+        assert!((whole.area - 1.0).abs() < 1e-6);
+        assert!(whole.area_moment.iter().all(|m| m.abs() < 1e-6));
+        assert!((whole.area_moment2[0] - 1.0 / 12.0).abs() < 1e-6 && whole.area_moment2[1].abs() < 1e-6);
+        // Half the cell [1, 2] × [0, 1], below the diagonal x + y = 2: centroid (−1/6, −1/6)
+        // from the centre; the point reflection through the centre maps it onto the other
+        // half and keeps x² and xy, so ∫x² = 1/24 and ∫xy = 0.
+        let half = clipped_moments(&t, 1.0, 0.0);
+        assert!((half.area - 0.5).abs() < 1e-6);
+        for m in half.area_moment {
+            assert!((m / half.area + 1.0 / 6.0).abs() < 1e-6, "{half:?}");
+        }
+        assert!((half.area_moment2[0] - 1.0 / 24.0).abs() < 1e-6, "{half:?}");
+        assert!(half.area_moment2[1].abs() < 1e-6, "{half:?}");
+        assert_eq!(clipped_moments(&t, 1.0, 1.0).area, 0.0);
     }
 
     #[test]
@@ -594,7 +710,11 @@ mod tests {
             ));
             tri.push(if z > x { 0 } else { 1 });
         }
-        let g = MultiscaleGrids::build(set, &tris, &photons, &tri, &MultiscaleParams::default(), &|_, _| false);
+        let probes = Probes {
+            buried: &|_, _| false,
+            clearance: &|_, _| f32::INFINITY,
+        };
+        let g = MultiscaleGrids::build(set, &tris, &photons, &tri, &MultiscaleParams::default(), &probes);
         let tex = &g.textures[0][INDIRECT];
         let total: f64 = tex.levels[0].texels.iter().map(|t| t.area as f64).sum();
         let full = tex.levels[0].texels.iter().filter(|t| t.area > 0.0).count();

@@ -139,6 +139,15 @@ pub struct PhotonStats {
     /// Closest-hit rays traced by the photon passes (one per path segment), so that the
     /// photon pass's ray rate can be set against the BVH's (`photongrid throughput`).
     pub rays: usize,
+    /// Wall seconds of the global pass's tracing (the time budget prices each kind of path).
+    pub global_seconds: f64,
+    /// Wall seconds of the caustic pass's tracing.
+    pub caustic_seconds: f64,
+    /// Stored power (luminance, W) of caustic photons, and of all photons: how much of the
+    /// light caustics carry.
+    pub caustic_power: f64,
+    /// Stored power (luminance, W) of all photons.
+    pub stored_power: f64,
 }
 
 impl PhotonStats {
@@ -153,6 +162,10 @@ impl PhotonStats {
         self.indirect += o.indirect;
         self.bytes = self.bytes.max(o.bytes);
         self.rays += o.rays;
+        self.global_seconds += o.global_seconds;
+        self.caustic_seconds += o.caustic_seconds;
+        self.caustic_power += o.caustic_power;
+        self.stored_power += o.stored_power;
     }
 }
 
@@ -181,6 +194,7 @@ pub fn trace_photons(
     // The global pass; when the caustic pass runs, it owns every light → specular → diffuse
     // photon and the global pass must not store them too.
     let n = settings.photons;
+    let t0 = std::time::Instant::now();
     let global = Pass {
         kind: PassKind::Global {
             store_caustic: !caustic_pass,
@@ -202,6 +216,7 @@ pub fn trace_photons(
         },
         &mut out,
     );
+    let global_seconds = t0.elapsed().as_secs_f64();
     let nc = if caustic_pass { settings.caustic_photons } else { 0 };
     if nc > 0 {
         let pass = Pass {
@@ -222,13 +237,9 @@ pub fn trace_photons(
             &mut out,
         );
     }
-    let PassOutput {
-        mut photons,
-        mut triangles,
-        rays,
-    } = out;
-    photons.shrink_to_fit();
-    triangles.shrink_to_fit();
+    out.photons.shrink_to_fit();
+    out.triangles.shrink_to_fit();
+    let (photons, triangles, rays) = (out.photons, out.triangles, out.rays);
     let mut stats = PhotonStats {
         emitted: n,
         caustic_emitted: nc,
@@ -236,6 +247,8 @@ pub fn trace_photons(
         stored: photons.len(),
         rays,
         bytes: photons.len() * std::mem::size_of::<Photon>(),
+        global_seconds,
+        caustic_seconds: t0.elapsed().as_secs_f64() - global_seconds,
         ..Default::default()
     };
     stats.count_kinds(&photons);
@@ -243,12 +256,17 @@ pub fn trace_photons(
 }
 
 impl PhotonStats {
-    /// Add the photons of each kind to the counts.
+    /// Add the photons of each kind, and their power, to the counts.
     fn count_kinds(&mut self, photons: &[Photon]) {
         for p in photons {
+            let power = crate::luminance(p.power()) as f64;
+            self.stored_power += power;
             match p.kind() {
                 PhotonKind::Direct => self.direct += 1,
-                PhotonKind::Caustic => self.caustic += 1,
+                PhotonKind::Caustic => {
+                    self.caustic += 1;
+                    self.caustic_power += power;
+                }
                 PhotonKind::Indirect => self.indirect += 1,
             }
         }

@@ -99,12 +99,18 @@ impl PassSize {
 pub struct Costs {
     /// Per pass, whatever its size (the grids' filtering).
     pub per_pass: f64,
-    /// Per photon path (tracing, irradiance precomputation, index), both passes.
+    /// Per global photon path (tracing, irradiance precomputation, index).
     pub per_path: f64,
+    /// Per caustic photon path (aimed at glass and mirrors; most store one photon).
+    #[serde(default)]
+    pub per_caustic_path: f64,
     /// Per camera sample without final gathering (all cameras' pixels counted).
     pub per_sample: f64,
     /// Per final-gather ray.
     pub per_gather_ray: f64,
+    /// Share of the stored photon power that caustic photons carry.
+    #[serde(default)]
+    pub caustic_share: f64,
     /// Camera pixels per pass, all cameras.
     pub pixels: u64,
     /// Wall seconds the probe took.
@@ -112,11 +118,28 @@ pub struct Costs {
 }
 
 impl Costs {
+    /// Predicted wall seconds of the photon paths of a pass of `size` (without `per_pass`).
+    pub fn photon_seconds(&self, size: &PassSize) -> f64 {
+        size.photons as f64 * self.per_path + size.caustic_photons as f64 * self.per_caustic_path
+    }
+
+    /// These costs with the photons' side scaled by `photons` and the camera's by `camera`.
+    fn scaled(&self, photons: f64, camera: f64) -> Costs {
+        Costs {
+            per_pass: self.per_pass * photons,
+            per_path: self.per_path * photons,
+            per_caustic_path: self.per_caustic_path * photons,
+            per_sample: self.per_sample * camera,
+            per_gather_ray: self.per_gather_ray * camera,
+            ..*self
+        }
+    }
+
     /// Predicted wall seconds of a pass of `size`.
     pub fn pass_seconds(&self, size: &PassSize) -> f64 {
         let samples = self.pixels as f64 * size.spp as f64;
         self.per_pass
-            + size.paths() as f64 * self.per_path
+            + self.photon_seconds(size)
             + samples * (self.per_sample + size.gather as f64 * self.per_gather_ray)
     }
 }
@@ -160,18 +183,20 @@ pub fn plan(costs: &Costs, left: f64, requested: PassSize, passes: f64) -> Plan 
             over_budget: false,
         };
     }
-    let (size, scale) = shrink(costs, left / passes, requested);
+    let size = shrink(costs, left / passes, requested);
     let predicted = costs.pass_seconds(&size);
+    let share = |n: usize, of: usize| 100.0 * n as f64 / of.max(1) as f64;
     Plan {
         size,
         predicted_pass_seconds: predicted,
         seconds_left: left,
         reason: format!(
             "the requested pass ({full:.2} s predicted) does not fit {passes} times in {left:.2} s: \
-             {} spp, {} gather rays, {:.1} % of the photons",
+             {} spp, {} gather rays, {:.1} % of the global and {:.1} % of the caustic photons",
             size.spp,
             size.gather,
-            scale * 100.0,
+            share(size.photons, requested.photons),
+            share(size.caustic_photons, requested.caustic_photons),
         ),
         over_budget: predicted > left,
     }
@@ -185,7 +210,7 @@ pub fn corrected(costs: &Costs, size: &PassSize, photon_seconds: f64, camera_sec
         caustic_photons: 0,
         ..*size
     }) - costs.per_pass;
-    let photons = costs.per_pass + size.paths() as f64 * costs.per_path;
+    let photons = costs.per_pass + costs.photon_seconds(size);
     let ratio = |measured: f64, predicted: f64| {
         if predicted > 0.0 && measured > 0.0 {
             measured / predicted
@@ -193,14 +218,7 @@ pub fn corrected(costs: &Costs, size: &PassSize, photon_seconds: f64, camera_sec
             1.0
         }
     };
-    let (kp, kc) = (ratio(photon_seconds, photons), ratio(camera_seconds, camera));
-    Costs {
-        per_pass: costs.per_pass * kp,
-        per_path: costs.per_path * kp,
-        per_sample: costs.per_sample * kc,
-        per_gather_ray: costs.per_gather_ray * kc,
-        ..*costs
-    }
+    costs.scaled(ratio(photon_seconds, photons), ratio(camera_seconds, camera))
 }
 
 /// Share of the time left that a last, smaller pass may be planned to take.
@@ -216,61 +234,92 @@ pub fn fill(costs: &Costs, left: f64, size: PassSize, predicted: f64, measured: 
         return None;
     }
     let k = measured / predicted;
-    let corrected = Costs {
-        per_pass: costs.per_pass * k,
-        per_path: costs.per_path * k,
-        per_sample: costs.per_sample * k,
-        per_gather_ray: costs.per_gather_ray * k,
-        ..*costs
-    };
-    let (fill, _) = shrink(&corrected, FILL_SHARE * left, size);
+    let corrected = costs.scaled(k, k);
+    let fill = shrink(&corrected, FILL_SHARE * left, size);
     // Photons and samples have floors; a pass cut at the deadline is dropped, so allow some.
     (corrected.pass_seconds(&fill) <= left).then_some(fill)
 }
 
-/// Photon paths a shrunk pass keeps before it gives up camera samples: this share of the
-/// requested ones (at least [`MIN_PATHS`]). Measured on cornell_glass at equal time, camera
-/// samples and gather rays lower the error more than photons beyond this (docs/time_budget.md).
+/// Global photon paths a shrunk pass keeps before it gives up camera samples: this share of
+/// the requested ones (at least their share of [`MIN_PATHS`]). Measured on cornell_glass at
+/// equal time, camera samples and gather rays lower the error more than global photons beyond
+/// this (docs/time_budget.md): final gathering smooths what they carry.
 pub const PHOTON_FLOOR_SHARE: f64 = 1.0 / 16.0;
+
+/// Caustic photons are kept before camera samples when caustics carry at least this share of
+/// the stored photon power (pool_caustic 0.17, ring_caustic 0.19; cornell_glass 0.007,
+/// shelf_objects 0.004): measured at equal time (docs/time_budget.md).
+pub const CAUSTICS_FIRST_SHARE: f64 = 0.1;
 
 /// A pass of `requested`'s shape that takes `target` seconds, giving up first what lowers the
 /// error least: photons down to [`PHOTON_FLOOR_SHARE`], then samples per pixel (down to 1),
-/// then gather rays (down to 1), then photons down to [`MIN_PATHS`]. Photons keep their
-/// global : caustic ratio. Returns the size and the photons' scale.
-pub fn shrink(costs: &Costs, target: f64, requested: PassSize) -> (PassSize, f64) {
+/// then gather rays (down to 1), then photons down to [`MIN_PATHS`]. Where caustics carry
+/// much of the light ([`CAUSTICS_FIRST_SHARE`]) the caustic photons are given up only after
+/// the samples: a caustic's sharpness depends on them alone (passes average images, they do
+/// not narrow the kernels), and they are cheap (most paths store one photon and need no
+/// irradiance). Photons freed time comes back to caustic photons first.
+pub fn shrink(costs: &Costs, target: f64, requested: PassSize) -> PassSize {
     let paths = requested.paths().max(1) as f64;
-    let floor = |share: f64| share.max(MIN_PATHS as f64 / paths).min(1.0);
-    let with_scale = |size: PassSize, scale: f64| PassSize {
-        photons: (requested.photons as f64 * scale).round() as usize,
-        caustic_photons: (requested.caustic_photons as f64 * scale).round() as usize,
-        ..size
-    };
-    // The scale of the photons that fills what the camera leaves of the target.
-    let fit = |size: &PassSize, lowest: f64| {
-        let camera = costs.pass_seconds(&PassSize {
-            photons: 0,
-            caustic_photons: 0,
-            ..*size
-        });
-        ((target - camera) / (paths * costs.per_path.max(1e-12))).clamp(lowest, 1.0)
-    };
+    let floor =
+        |n: usize, share: f64| ((n as f64 * share).max(MIN_PATHS as f64 * n as f64 / paths).round() as usize).min(n);
     // Photon counts are rounded: a pass that fills the target exactly may be over it by a photon.
-    let slack = 2.0 * costs.per_path + 1e-9 * target;
-    let over = |size: PassSize, scale: f64| costs.pass_seconds(&with_scale(size, scale)) > target + slack;
-    let mut size = requested;
-    let mut scale = fit(&size, floor(PHOTON_FLOOR_SHARE));
-    while size.spp > 1 && over(size, scale) {
+    let slack = 2.0 * costs.per_path.max(costs.per_caustic_path) + 1e-9 * target;
+    let over = |size: &PassSize| costs.pass_seconds(size) > target + slack;
+    // The most photons of one kind, within [lo, requested], that fit beside the rest of `size`.
+    let most = |rest: f64, per: f64, lo: usize, hi: usize| {
+        (((target - rest) / per.max(1e-12)).floor().max(0.0).min(hi as f64) as usize).max(lo)
+    };
+    // Caustic photons first (down to `c_lo`) with the global ones at `g_lo`, then the global
+    // ones in what is left.
+    let refill = |size: PassSize, g_lo: usize, c_lo: usize| {
+        let at_lo = PassSize {
+            photons: g_lo,
+            caustic_photons: 0,
+            ..size
+        };
+        let caustic = most(
+            costs.pass_seconds(&at_lo),
+            costs.per_caustic_path,
+            c_lo,
+            requested.caustic_photons,
+        );
+        let without = PassSize {
+            photons: 0,
+            caustic_photons: caustic,
+            ..size
+        };
+        let photons = most(costs.pass_seconds(&without), costs.per_path, g_lo, requested.photons);
+        PassSize {
+            photons,
+            caustic_photons: caustic,
+            ..size
+        }
+    };
+    let g_lo = floor(requested.photons, PHOTON_FLOOR_SHARE);
+    let c_lo = floor(requested.caustic_photons, PHOTON_FLOOR_SHARE);
+    let c_first = if costs.caustic_share >= CAUSTICS_FIRST_SHARE {
+        requested.caustic_photons
+    } else {
+        c_lo
+    };
+    let mut size = refill(requested, g_lo, c_first);
+    while size.spp > 1 && over(&size) {
         size.spp -= 1;
-        scale = fit(&size, floor(PHOTON_FLOOR_SHARE));
+        size = refill(size, g_lo, c_first);
     }
-    while size.gather > 1 && over(size, scale) {
+    size = refill(size, g_lo, c_lo);
+    while size.gather > 1 && over(&size) {
         size.gather -= 1;
-        scale = fit(&size, floor(PHOTON_FLOOR_SHARE));
+        size = refill(size, g_lo, c_lo);
     }
-    if over(size, scale) {
-        scale = fit(&size, floor(0.0));
+    if over(&size) {
+        size = refill(
+            size,
+            floor(requested.photons, 0.0),
+            floor(requested.caustic_photons, 0.0),
+        );
     }
-    (with_scale(size, scale), scale)
+    size
 }
 
 #[cfg(test)]
@@ -307,6 +356,8 @@ mod tests {
         Costs {
             per_pass: 0.05,
             per_path: 1e-6,
+            per_caustic_path: 0.4e-6,
+            caustic_share: 0.2,
             per_sample: 2e-6,
             per_gather_ray: 1e-6,
             pixels: 640 * 480,
@@ -333,47 +384,108 @@ mod tests {
     }
 
     #[test]
-    fn a_short_budget_gives_up_photons_first_then_samples() {
+    fn a_short_budget_gives_up_global_photons_then_samples_then_caustic_photons() {
         let c = costs();
         let full = c.pass_seconds(&requested());
         let mut last = requested();
-        for left in [full * 1.5, full, full / 2.0, full / 4.0] {
+        let floor = |n: usize| (n as f64 * PHOTON_FLOOR_SHARE).round() as usize;
+        let mut cut_caustics = false;
+        for left in [full * 1.5, full, full / 2.0, full / 4.0, full / 6.0, full / 8.0] {
             let p = plan(&c, left, requested(), PLANNED_PASSES);
-            assert!(p.predicted_pass_seconds <= left / PLANNED_PASSES * 1.0001, "{p:?}");
+            let target = left / PLANNED_PASSES;
+            assert!(p.predicted_pass_seconds <= target * 1.0001, "{p:?}");
             assert!(!p.over_budget);
             // Fewer samples as the budget shrinks (photons may come back in the time a sample
             // leaves: samples are whole).
             assert!(p.size.spp <= last.spp, "{p:?} after {last:?}");
-            // Samples are given up only when the photons at their floor do not leave room for
-            // one more (with every gather ray: gather rays go after samples).
+            assert!(p.size.photons >= floor(requested().photons), "{p:?}");
+            // Samples go only when the global photons are at their floor and the caustic ones
+            // still whole do not leave room for one more (with every gather ray).
             if p.size.spp < requested().spp {
-                let floor = PHOTON_FLOOR_SHARE * requested().paths() as f64 / requested().paths() as f64;
                 let one_more = PassSize {
+                    photons: floor(requested().photons),
+                    caustic_photons: requested().caustic_photons,
                     spp: p.size.spp + 1,
                     gather: requested().gather,
-                    ..p.size
                 };
-                let at_floor = PassSize {
-                    photons: (requested().photons as f64 * floor) as usize,
-                    caustic_photons: (requested().caustic_photons as f64 * floor) as usize,
-                    ..one_more
-                };
-                assert!(c.pass_seconds(&at_floor) > left / PLANNED_PASSES, "{p:?}");
+                assert!(c.pass_seconds(&one_more) > target, "{p:?}");
             }
-            let ratio = p.size.photons as f64 / p.size.caustic_photons as f64;
-            assert!((ratio - 2.0).abs() < 1e-3, "{ratio}");
+            // Caustic photons go only at 1 spp, and before any gather ray.
+            if p.size.caustic_photons < requested().caustic_photons {
+                cut_caustics = true;
+                assert_eq!(p.size.spp, 1, "{p:?}");
+                assert_eq!(p.size.photons, floor(requested().photons), "{p:?}");
+                if p.size.gather < requested().gather {
+                    // One more gather ray does not fit even with the caustic photons at floor.
+                    let one_more = PassSize {
+                        caustic_photons: floor(requested().caustic_photons),
+                        gather: p.size.gather + 1,
+                        ..p.size
+                    };
+                    assert!(c.pass_seconds(&one_more) > target, "{p:?}");
+                }
+            } else if p.size != requested() {
+                assert_eq!(p.size.gather, requested().gather, "{p:?}");
+            }
             last = p.size;
         }
         assert!(last.spp < requested().spp, "the shortest budget cut samples: {last:?}");
+        assert!(cut_caustics, "the shortest budgets cut caustic photons: {last:?}");
     }
 
     #[test]
-    fn gather_rays_go_after_samples_and_a_hopeless_budget_says_so() {
+    fn where_caustics_carry_little_light_samples_outlast_caustic_photons() {
+        let c = Costs {
+            caustic_share: 0.01,
+            ..costs()
+        };
+        let floor = |n: usize| (n as f64 * PHOTON_FLOOR_SHARE).round() as usize;
+        let full = c.pass_seconds(&requested());
+        let mut cut_samples = false;
+        for left in [full, full / 2.0, full / 4.0, full / 6.0] {
+            let p = plan(&c, left, requested(), PLANNED_PASSES);
+            assert!(p.predicted_pass_seconds <= left / PLANNED_PASSES * 1.0001, "{p:?}");
+            if p.size.spp < requested().spp {
+                cut_samples = true;
+                let one_more = PassSize {
+                    photons: floor(requested().photons),
+                    caustic_photons: floor(requested().caustic_photons),
+                    spp: p.size.spp + 1,
+                    gather: requested().gather,
+                };
+                assert!(c.pass_seconds(&one_more) > left / PLANNED_PASSES, "{p:?}");
+            }
+        }
+        assert!(cut_samples);
+        // With caustics carrying much of the light, the same budget keeps more caustic photons.
+        // Room for 2 spp with the global photons at their floor and half the caustic ones.
+        let two = PassSize {
+            photons: floor(requested().photons),
+            caustic_photons: requested().caustic_photons / 2,
+            spp: 2,
+            ..requested()
+        };
+        let left = c.pass_seconds(&two) * PLANNED_PASSES;
+        let rich = plan(&costs(), left, requested(), PLANNED_PASSES).size;
+        let poor = plan(&c, left, requested(), PLANNED_PASSES).size;
+        assert!(rich.caustic_photons > poor.caustic_photons, "{rich:?} vs {poor:?}");
+        assert!(rich.spp < poor.spp, "{rich:?} vs {poor:?}");
+    }
+
+    #[test]
+    fn gather_rays_go_after_samples_and_caustics_and_a_hopeless_budget_says_so() {
         let c = costs();
         let one_spp = c.pixels as f64 * (c.per_sample + 8.0 * c.per_gather_ray);
         let p = plan(&c, one_spp, requested(), PLANNED_PASSES);
         assert_eq!(p.size.spp, 1);
         assert!(p.size.gather < 8 && p.size.gather >= 1, "{p:?}");
+        let floor = |n: usize| (n as f64 * PHOTON_FLOOR_SHARE).round() as usize;
+        let one_more = PassSize {
+            caustic_photons: floor(requested().caustic_photons),
+            gather: p.size.gather + 1,
+            ..p.size
+        };
+        assert!(c.pass_seconds(&one_more) > one_spp / PLANNED_PASSES, "{p:?}");
         let hopeless = plan(&c, 1e-3, requested(), PLANNED_PASSES);
         assert!(hopeless.over_budget);
         assert_eq!((hopeless.size.spp, hopeless.size.gather), (1, 1));
@@ -402,10 +514,11 @@ mod tests {
             spp: 1,
             gather: 4,
         };
-        let photons = c.per_pass + size.paths() as f64 * c.per_path;
+        let photons = c.per_pass + c.photon_seconds(&size);
         let camera = c.pass_seconds(&size) - photons;
         let k = corrected(&c, &size, 2.0 * photons, 0.5 * camera);
         assert!((k.per_path / c.per_path - 2.0).abs() < 1e-9);
+        assert!((k.per_caustic_path / c.per_caustic_path - 2.0).abs() < 1e-9);
         assert!((k.per_sample / c.per_sample - 0.5).abs() < 1e-9);
         assert!((k.per_gather_ray / c.per_gather_ray - 0.5).abs() < 1e-9);
         assert!((k.pass_seconds(&size) - (2.0 * photons + 0.5 * camera)).abs() < 1e-9);
@@ -413,18 +526,25 @@ mod tests {
 
     #[test]
     fn a_pass_that_fills_the_target_exactly_keeps_its_samples() {
-        // Costs a probe measured on cornell_area: the pass of 2 spp and 24 % of the photons
-        // fills the target to the photon; rounding the photon counts once cut it to 1 spp and
-        // 1 gather ray.
+        // Costs a probe measured on cornell_area; a pass of 2 spp fills the target to the
+        // photon. Rounding the photon counts once cut such a pass to 1 spp and 1 gather ray.
         let c = Costs {
             per_pass: 0.012916561,
             per_path: 2.6802417813333333e-06,
+            per_caustic_path: 0.9802417813333333e-06,
+            caustic_share: 0.05,
             per_sample: 3.679861458333333e-06,
             per_gather_ray: 9.686567447916666e-07,
             pixels: 307200,
             probe_seconds: 0.338,
         };
-        let p = plan(&c, 14.338187185999999, requested(), PLANNED_PASSES);
-        assert_eq!((p.size.spp, p.size.gather), (2, 8), "{p:?}");
+        let exact = PassSize {
+            photons: 481_577,
+            spp: 2,
+            ..requested()
+        };
+        let p = shrink(&c, c.pass_seconds(&exact), requested());
+        assert_eq!((p.spp, p.gather, p.caustic_photons), (2, 8, 1_000_000), "{p:?}");
+        assert!(p.photons.abs_diff(exact.photons) <= 1, "{p:?}");
     }
 }

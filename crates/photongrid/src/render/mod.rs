@@ -97,26 +97,80 @@ pub struct CameraPass<'a> {
     pub settings: &'a RenderSettings,
 }
 
-/// Render a camera pass into a film. `progress(rows)` is called as rows finish.
+/// Render a camera pass into a film. `progress(rows)` is called as rows finish (each row once
+/// per sample per pixel: the samples are rendered as whole-image sweeps).
 pub fn render(pass: CameraPass<'_>, progress: &(dyn Fn(usize) + Sync)) -> Film {
-    render_until(pass, progress, None).expect("a render without a deadline completes")
+    let all = Cut {
+        deadline: None,
+        required: 0,
+    };
+    render_until(pass, progress, all)
+        .expect("a render without a deadline completes")
+        .film
 }
 
-/// [`render`], given up (`None`) when `deadline` passes before every row is done: the rows
-/// still to do are skipped, so a pass that overruns a time budget ends at the deadline.
-pub fn render_until(
+/// When a camera pass gives up: at `deadline`, keeping the sweeps (one sample per pixel each)
+/// already done, except that the first `required` sweeps always complete.
+#[derive(Clone, Copy, Debug)]
+pub struct Cut {
+    /// When to stop starting rows.
+    pub deadline: Option<Instant>,
+    /// Sweeps that complete whatever the deadline (1 for a budget's first pass: it is the image).
+    pub required: u32,
+}
+
+/// A camera pass's film and the samples per pixel it holds.
+#[derive(Debug)]
+pub struct Swept {
+    /// Each pixel's mean over `samples` samples.
+    pub film: Film,
+    /// Sweeps completed (≤ the settings' spp).
+    pub samples: u32,
+}
+
+/// [`render`], cut at `cut.deadline`: a sweep still running then is dropped and the film holds
+/// the sweeps before it (`None` if there are none), so a pass that overruns a time budget ends
+/// at the deadline having lost at most one sample per pixel of work.
+pub fn render_until(pass: CameraPass<'_>, progress: &(dyn Fn(usize) + Sync), cut: Cut) -> Option<Swept> {
+    let (w, h) = (pass.settings.width, pass.settings.height);
+    let mut film = Film::new(w, h);
+    let mut sweep = vec![Rgb::ZERO; w as usize * h as usize];
+    let mut samples = 0;
+    for s in 0..pass.settings.spp.max(1) {
+        let deadline = cut.deadline.filter(|_| s >= cut.required);
+        if !render_sweep(pass, progress, deadline, s, &mut sweep, &mut film.aov) {
+            break;
+        }
+        for (c, v) in film.color.iter_mut().zip(&sweep) {
+            *c += *v;
+        }
+        samples += 1;
+    }
+    if samples == 0 {
+        return None;
+    }
+    for c in &mut film.color {
+        *c /= samples as f32;
+    }
+    Some(Swept { film, samples })
+}
+
+/// Sample `s` of every pixel into `sweep` (and the first-hit AOVs when `s` is 0); false if
+/// `deadline` passed before every row was done.
+fn render_sweep(
     pass: CameraPass<'_>,
     progress: &(dyn Fn(usize) + Sync),
     deadline: Option<Instant>,
-) -> Option<Film> {
+    s: u32,
+    sweep: &mut [Rgb],
+    aov: &mut [Aov],
+) -> bool {
     let (camera, settings) = (pass.camera, pass.settings);
-    let (w, h) = (settings.width, settings.height);
-    let mut film = Film::new(w, h);
-    let spp = settings.spp.max(1);
+    let w = settings.width as usize;
     let late = AtomicBool::new(false);
-    film.color
-        .par_chunks_mut(w as usize)
-        .zip(film.aov.par_chunks_mut(w as usize))
+    sweep
+        .par_chunks_mut(w)
+        .zip(aov.par_chunks_mut(w))
         .enumerate()
         .for_each_init(
             || Tracer::of(pass),
@@ -125,24 +179,19 @@ pub fn render_until(
                     late.store(true, Ordering::Relaxed);
                     return;
                 }
-                for x in 0..w as usize {
-                    let pixel = (y * w as usize + x) as u64;
-                    let mut sum = Rgb::ZERO;
-                    let strata = pixel_strata(settings, pixel);
-                    for s in 0..spp {
-                        let (o, d, mut rng) = camera_ray(camera, settings, &strata, x, y, s);
-                        let mut aov = (s == 0).then_some(&mut aovs[x]);
-                        sum += tracer.radiance(o, d, 0, &mut rng, &mut aov);
-                        if s == 0 {
-                            aovs[x].depth *= d.dot(camera.forward()); // along the axis, see Aov
-                        }
+                for x in 0..w {
+                    let strata = pixel_strata(settings, (y * w + x) as u64);
+                    let (o, d, mut rng) = camera_ray(camera, settings, &strata, x, y, s);
+                    let mut first = (s == 0).then_some(&mut aovs[x]);
+                    row[x] = tracer.radiance(o, d, 0, &mut rng, &mut first);
+                    if s == 0 {
+                        aovs[x].depth *= d.dot(camera.forward()); // along the axis, see Aov
                     }
-                    row[x] = sum / spp as f32;
                 }
                 progress(1);
             },
         );
-    (!late.into_inner()).then_some(film)
+    !late.into_inner()
 }
 
 /// The photon-estimate query at a surface point.

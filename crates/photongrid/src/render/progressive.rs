@@ -3,11 +3,10 @@
 //! each pass's photons, is [`crate::pipeline::render`].
 
 use super::sppm::SppmFilm;
-use super::{render_until, CameraPass};
+use super::{render_until, CameraPass, Cut};
 use crate::estimate::Accumulation;
 use crate::film::{Aov, Film};
 use crate::Rgb;
-use std::time::Instant;
 
 pub use super::budget::{Budget, Stop};
 
@@ -48,17 +47,17 @@ impl Accumulator {
 
     /// Render one more pass of `camera` with this pass's photons (`settings.seed` and
     /// `settings.pass` are the pass's), weighted by `weight` in the average (a smaller last pass
-    /// of a time budget counts less). Returns false, adding nothing, when the pass is given up
-    /// at `deadline` (SPPM's passes update every sample in place and always complete).
-    pub fn add_pass(
-        &mut self,
-        pass: CameraPass<'_>,
-        progress: &(dyn Fn(usize) + Sync),
-        deadline: Option<Instant>,
-        weight: f32,
-    ) -> bool {
+    /// of a time budget counts less). A pass cut at `cut`'s deadline keeps the samples per pixel
+    /// it completed, its weight scaled by their share; returns the samples per pixel added (0
+    /// when the pass is given up; SPPM's passes update every sample in place and always
+    /// complete).
+    pub fn add_pass(&mut self, pass: CameraPass<'_>, progress: &(dyn Fn(usize) + Sync), cut: Cut, weight: f32) -> u32 {
+        let spp = pass.settings.spp.max(1);
         match self {
-            Accumulator::Sppm(s) => s.add_pass(pass, progress),
+            Accumulator::Sppm(s) => {
+                s.add_pass(pass, progress);
+                spp
+            }
             Accumulator::Average {
                 sum,
                 aov,
@@ -66,20 +65,21 @@ impl Accumulator {
                 weight: total,
                 ..
             } => {
-                let Some(film) = render_until(pass, progress, deadline) else {
-                    return false;
+                let Some(swept) = render_until(pass, progress, cut) else {
+                    return 0;
                 };
-                for (s, c) in sum.iter_mut().zip(&film.color) {
+                let weight = weight * swept.samples as f32 / spp as f32;
+                for (s, c) in sum.iter_mut().zip(&swept.film.color) {
                     *s += *c * weight;
                 }
                 *total += weight;
                 if *passes == 0 {
-                    *aov = film.aov;
+                    *aov = swept.film.aov;
                 }
                 *passes += 1;
+                swept.samples
             }
         }
-        true
     }
 
     /// Passes added so far.
