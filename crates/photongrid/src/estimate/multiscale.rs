@@ -20,7 +20,7 @@ use std::f32::consts::PI;
 
 /// Luminance, the scalar the intervals are tested on.
 fn luminance(c: [f32; 3]) -> f32 {
-    0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
+    crate::luminance(Rgb::from_array(c))
 }
 
 /// A layer's irradiance at the chosen scale.

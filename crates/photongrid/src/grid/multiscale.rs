@@ -13,14 +13,9 @@
 
 use super::planes::{Plane, PlaneSet, NO_PLANE};
 use crate::photon::{Photon, PhotonKind};
-use crate::Rgb;
+use crate::{luminance, Rgb};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
-
-/// Rec.709 luminance of a power, the scalar the scale choice tests.
-fn luminance(c: Rgb) -> f32 {
-    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
-}
 
 /// Block sums over a cell or a block of cells. The moments are about the texel's centre, in
 /// fine cells: with them a kernel fits a plane to the light instead of a constant, so a
