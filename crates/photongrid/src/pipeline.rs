@@ -521,7 +521,6 @@ impl<'a> PassLoop<'a> {
         let (scene, accel, settings) = (self.scene, self.accel, &self.settings);
         let times = &mut report.seconds;
         let photons = trace_pass(scene, accel, settings, done, &mut self.grids, progress, times);
-        report.photons.add(&photons.stats);
         report.memory.photon_map_bytes = report.memory.photon_map_bytes.max(photons.map.memory_bytes());
         let input = PhotonData {
             estimator: Estimator::for_pass(settings, done, &photons.map, self.grids.view()),
@@ -543,6 +542,7 @@ impl<'a> PassLoop<'a> {
             times.render += seconds;
             let spp = settings.spp.max(1);
             if samples == 0 {
+                // A dropped pass's photons are in no image: not reported as emitted.
                 report.passes.dropped = 1;
                 return false;
             }
@@ -551,6 +551,7 @@ impl<'a> PassLoop<'a> {
                 complete = false;
             }
         }
+        report.photons.add(&photons.stats);
         complete
     }
 
