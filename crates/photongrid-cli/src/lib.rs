@@ -11,4 +11,5 @@ pub mod info;
 pub mod metrics;
 pub mod paths;
 pub mod progress;
+pub mod stdout;
 pub mod throughput;

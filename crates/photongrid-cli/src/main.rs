@@ -10,6 +10,7 @@ use photongrid::progress::Progress;
 use photongrid::scene::gltf::{load_with, LoadOptions};
 use photongrid::settings::parse_seconds_or_zero;
 use photongrid::Settings;
+use photongrid_cli::{out, outln};
 use photongrid_cli::metrics::read_exr_rgb;
 use photongrid_cli::paths::{self, Format};
 use photongrid_cli::progress::{emit_json, Display, ProgressMode};
@@ -346,7 +347,7 @@ fn bench(a: BenchArgs) -> Result<()> {
     if a.report_only {
         let file = bench::BenchFile::read(&a.out.join("bench.json"))?;
         for p in bench::write_reports(&file, &a.out)? {
-            println!("{}", p.display());
+            outln!("{}", p.display());
         }
         return Ok(());
     }
@@ -401,7 +402,7 @@ fn bench(a: BenchArgs) -> Result<()> {
         summary.ran, summary.skipped, summary.seconds
     );
     for p in &summary.outputs {
-        println!("{}", p.display());
+        outln!("{}", p.display());
     }
     Ok(())
 }
@@ -424,9 +425,9 @@ fn throughput(a: ThroughputArgs) -> Result<()> {
         results.push(measure(scene, &opts)?);
     }
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&results)?);
+        outln!("{}", serde_json::to_string_pretty(&results)?);
     } else {
-        print!("{}", table_md(&results));
+        out!("{}", table_md(&results));
     }
     Ok(())
 }
@@ -436,7 +437,7 @@ fn throughput(a: ThroughputArgs) -> Result<()> {
 fn settings_command(schema: bool) -> Result<()> {
     let defaults = serde_json::to_value(Settings::default())?;
     if !schema {
-        println!("{}", serde_json::to_string_pretty(&defaults)?);
+        outln!("{}", serde_json::to_string_pretty(&defaults)?);
         return Ok(());
     }
     use clap::Args as _;
@@ -465,7 +466,7 @@ fn settings_command(schema: bool) -> Result<()> {
         })
         .collect();
     let doc = serde_json::json!({"version": env!("CARGO_PKG_VERSION"), "settings": items});
-    println!("{}", serde_json::to_string_pretty(&doc)?);
+    outln!("{}", serde_json::to_string_pretty(&doc)?);
     Ok(())
 }
 
@@ -943,7 +944,7 @@ fn info(paths: &[PathBuf], json: bool) -> Result<()> {
     if let [path] = paths {
         let doc = info_one(path, json)?;
         if json {
-            println!("{}", serde_json::to_string_pretty(&doc)?);
+            outln!("{}", serde_json::to_string_pretty(&doc)?);
         }
         return Ok(());
     }
@@ -963,11 +964,11 @@ fn info(paths: &[PathBuf], json: bool) -> Result<()> {
             }
         }
         if !json {
-            println!();
+            outln!();
         }
     }
     if json {
-        println!("{}", serde_json::to_string_pretty(&serde_json::Value::Array(docs))?);
+        outln!("{}", serde_json::to_string_pretty(&serde_json::Value::Array(docs))?);
     }
     if !failed.is_empty() {
         bail!(
@@ -997,22 +998,22 @@ fn info_one(path: &Path, json: bool) -> Result<serde_json::Value> {
             "report": report,
         }));
     }
-    println!("{}", path.display());
-    println!(
+    outln!("{}", path.display());
+    outln!(
         "  triangles: {} ({} degenerate skipped), surface {:.3} m²",
         scene.triangles.len(),
         r.degenerate_triangles,
         scene.surface_area()
     );
-    println!(
+    outln!(
         "  bounds: {:.3?} – {:.3?}",
         scene.bounds.min.to_array(),
         scene.bounds.max.to_array()
     );
     let section = |title: &str, items: &[String]| {
-        println!("  {title}: {}", if items.is_empty() { "none" } else { "" });
+        outln!("  {title}: {}", if items.is_empty() { "none" } else { "" });
         for i in items {
-            println!("    - {i}");
+            outln!("    - {i}");
         }
     };
     section("materials", &r.materials);
@@ -1025,7 +1026,7 @@ fn info_one(path: &Path, json: bool) -> Result<serde_json::Value> {
     section("cameras", &cameras);
     section("approximated", &r.approximated);
     section("ignored", &r.ignored);
-    println!(
+    outln!(
         "  caustics possible (glass or mirror present): {}",
         if scene.has_specular() { "yes" } else { "no" }
     );
@@ -1035,19 +1036,19 @@ fn info_one(path: &Path, json: bool) -> Result<serde_json::Value> {
         .iter()
         .filter(|p| **p != photongrid::grid::planes::NO_PLANE)
         .count();
-    println!(
+    outln!(
         "  planes (grids for --method adaptive): {} ({} of {} triangles; the rest use kNN or voxels)",
         set.planes.len(),
         on_plane,
         scene.triangles.len()
     );
     let grids = photongrid::grid::Grids::build(&scene, &[], &[], &(&Settings::default()).into());
-    println!("  grids chosen by --grid auto (the default):");
+    outln!("  grids chosen by --grid auto (the default):");
     for c in &grids.choice {
-        println!("    - {c}");
+        outln!("    - {c}");
     }
     for (i, p) in set.planes.iter().enumerate() {
-        println!(
+        outln!(
             "    - plane {i}: {:.3} × {:.3} m, normal {:.3?}, {} triangles, {}×{} cells of {:.2} mm²",
             p.size_u,
             p.size_v,
@@ -1071,19 +1072,19 @@ fn compare(image: &Path, reference: &Path, mask: Option<&Path>, block: usize, js
     let s = photongrid_cli::metrics::score(&img, &r, m.as_deref(), block)
         .map_err(|e| anyhow::anyhow!("{}: {e}", image.display()))?;
     if json {
-        println!("{}", serde_json::to_string(&s)?);
+        outln!("{}", serde_json::to_string(&s)?);
     } else {
         let f = |v: Option<f64>| v.map(|v| format!("{v:.4}")).unwrap_or_else(|| "n/a".into());
-        println!("mean_lum_ratio        {}", f(s.mean_lum_ratio));
-        println!(
+        outln!("mean_lum_ratio        {}", f(s.mean_lum_ratio));
+        outln!(
             "rgb_mean_ratio        {:.4} {:.4} {:.4}",
             s.rgb_mean_ratio[0], s.rgb_mean_ratio[1], s.rgb_mean_ratio[2]
         );
-        println!("rel_rmse              {}", f(s.rel_rmse));
-        println!("block_rel_rmse        {}  (block {})", f(s.block_rel_rmse), s.block);
-        println!("block_frac_off_10pct  {}", f(s.block_frac_off_10pct));
-        println!("nonfinite_pixels      {}", s.nonfinite_pixels);
-        println!("pixels_scored         {}", s.pixels_scored);
+        outln!("rel_rmse              {}", f(s.rel_rmse));
+        outln!("block_rel_rmse        {}  (block {})", f(s.block_rel_rmse), s.block);
+        outln!("block_frac_off_10pct  {}", f(s.block_frac_off_10pct));
+        outln!("nonfinite_pixels      {}", s.nonfinite_pixels);
+        outln!("pixels_scored         {}", s.pixels_scored);
     }
     Ok(())
 }

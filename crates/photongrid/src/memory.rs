@@ -210,8 +210,8 @@ pub fn estimate_footprint(scene: &SceneFootprint, cameras: &[&Camera], settings:
         "render a smaller scene",
     );
     image_items(&mut items, cameras, settings);
-    photon_items(&mut items, scene, settings);
-    grid_items(&mut items, settings);
+    let stored = photon_items(&mut items, scene, settings);
+    grid_items(&mut items, settings, stored);
     let mut items = items.0;
     items.sort_by(|a, b| b.bytes.cmp(&a.bytes));
     MemoryEstimate {
@@ -288,8 +288,8 @@ fn image_items(items: &mut Items, cameras: &[&Camera], settings: &Settings) {
     );
 }
 
-/// One pass's photons.
-fn photon_items(items: &mut Items, scene: &SceneFootprint, settings: &Settings) {
+/// One pass's photons; returns how many are stored.
+fn photon_items(items: &mut Items, scene: &SceneFootprint, settings: &Settings) -> u64 {
     let caustic = if scene.specular && settings.photons > 0 {
         settings.caustic_photons as u64
     } else {
@@ -318,10 +318,11 @@ fn photon_items(items: &mut Items, scene: &SceneFootprint, settings: &Settings) 
         stored.saturating_mul(per_photon),
         "lower --photons (and --caustic-photons); add passes with --passes instead",
     );
+    stored
 }
 
-/// The grids the estimate needs.
-fn grid_items(items: &mut Items, settings: &Settings) {
+/// The grids the estimate needs, for `stored` photons a pass.
+fn grid_items(items: &mut Items, settings: &Settings, stored: u64) {
     let needs = settings.method.needs();
     if needs.grids && settings.grid != crate::settings::GridMode::None {
         let cells = (settings.grid_res as u64).saturating_pow(2);
@@ -335,9 +336,10 @@ fn grid_items(items: &mut Items, settings: &Settings) {
         );
     }
     if needs.multiscale {
+        let cells = settings.multiscale_cells(stored as usize);
         items.add(
-            format!("multiscale grids (--grid-cells {})", settings.grid_cells),
-            (settings.grid_cells as u64).saturating_mul(BYTES_PER_MULTISCALE_CELL),
+            format!("multiscale grids ({cells} cells: --grid-cells {}, at most {} a stored photon)", settings.grid_cells, Settings::MULTISCALE_CELLS_PER_PHOTON),
+            (cells as u64).saturating_mul(BYTES_PER_MULTISCALE_CELL),
             "lower --grid-cells",
         );
     }

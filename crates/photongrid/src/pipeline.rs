@@ -5,7 +5,7 @@
 //! render through [`render`], so what is measured is what users run.
 
 use crate::accel::Accel;
-use crate::estimate::{Accumulation, Estimator, IrradianceCache, PassGrids, PhotonMap};
+use crate::estimate::{Accumulation, Estimator, Gammas, IrradianceCache, PassGrids, PhotonMap};
 use crate::film::Film;
 use crate::grid::multiscale::{MultiscaleGrids, MultiscaleParams, Probes};
 use crate::grid::PlaneGrids;
@@ -867,13 +867,16 @@ impl GridState {
         triangles: &[u32],
     ) {
         if settings.method.needs().multiscale {
-            match self.multiscale.as_mut() {
-                Some(g) => g.add(photons, triangles),
+            let g = match self.multiscale.as_mut() {
+                Some(g) => {
+                    g.add(photons, triangles);
+                    g
+                }
                 None => {
                     let set = PlaneGrids::detect_receivers(scene, settings.grid_res);
                     let tris: Vec<[glam::Vec3; 3]> = scene.triangles.iter().map(|t| t.p).collect();
                     let params = MultiscaleParams {
-                        cell_budget: settings.grid_cells,
+                        cell_budget: settings.multiscale_cells(photons.len()),
                         photons_per_cell: settings.cell_photons,
                         max_radius: settings.max_radius * scene.bounds.diagonal(),
                         ..MultiscaleParams::default()
@@ -886,8 +889,11 @@ impl GridState {
                     for line in g.describe() {
                         tracing::info!("{line}");
                     }
-                    self.multiscale = Some(g);
+                    self.multiscale.insert(g)
                 }
+            };
+            if settings.effective_gather() > 0 {
+                g.resolve_for_gathering(Gammas::of_settings(settings));
             }
         }
     }
@@ -1040,7 +1046,7 @@ fn irradiance_cache(
             .iter()
             .zip(photon_triangles)
             .step_by(settings.gather_stride.max(1))
-            .filter(|(p, &t)| settings.gathered(p.depth()) && g.texture_of(t).is_none())
+            .filter(|(p, &t)| settings.gathered(p.depth()) && g.texture_facing(t, p.normal()).is_none())
             .map(|(p, _)| *p)
             .collect()
     });

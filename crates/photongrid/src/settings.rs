@@ -250,7 +250,7 @@ impl Default for Settings {
             height: None,
             spp: 4,
             seed: 0,
-            method: Method::Adaptive,
+            method: Method::Multiscale,
             neighbours: 100,
             direct: DirectLighting::ShadowRays,
             alpha: 0.1,
@@ -386,6 +386,18 @@ impl Settings {
     /// one final-gather bounce (the path is then `depth + 2` segments long).
     pub fn gathered(&self, depth: u32) -> bool {
         self.max_depth == 0 || depth + 2 <= self.max_depth
+    }
+
+    /// Most multiscale fine cells per stored photon of the first pass: cells hold about
+    /// `cell_photons` photons where the light is densest, so more would only cost memory (a
+    /// small render is not charged the whole `grid_cells` budget).
+    pub const MULTISCALE_CELLS_PER_PHOTON: usize = 4;
+
+    /// Fine cells of the multiscale pyramids for a first pass of `stored` photons:
+    /// `grid_cells`, or fewer for few photons (at least 64k).
+    pub fn multiscale_cells(&self, stored: usize) -> usize {
+        self.grid_cells
+            .min(stored.saturating_mul(Self::MULTISCALE_CELLS_PER_PHOTON).max(1 << 16))
     }
 
     /// Final-gather rays actually used: SPPM gathers photons at its visible points itself, so

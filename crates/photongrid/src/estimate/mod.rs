@@ -165,10 +165,7 @@ impl<'a> Estimator<'a> {
                 map,
                 grids: grids.multiscale,
                 k,
-                gamma: Gammas {
-                    global: settings.ici_threshold,
-                    caustic: settings.caustic_ici_threshold,
-                },
+                gamma: Gammas::of_settings(settings),
                 direct: settings.direct == crate::settings::DirectLighting::Photons,
                 gathering: settings.effective_gather() > 0,
             },
@@ -207,13 +204,14 @@ impl<'a> Estimator<'a> {
         g
     }
 
-    /// Total irradiance at a final-gather ray's hit read from the grids, where they cover it
+    /// Total irradiance at a final-gather ray's hit (on the side `facing_normal` faces) read
+    /// from the grids, where they cover it
     /// (the multiscale estimate); None: read precomputed irradiance instead.
-    pub fn grid_irradiance(&self, triangle: u32, p: Vec3) -> Option<crate::Rgb> {
+    pub fn grid_irradiance(&self, triangle: u32, p: Vec3, facing_normal: Vec3) -> Option<crate::Rgb> {
         match *self {
             Estimator::Multiscale {
                 grids: Some(g), gamma, ..
-            } => g.irradiance(triangle, p, gamma),
+            } => g.irradiance(triangle, p, facing_normal, gamma),
             _ => None,
         }
     }

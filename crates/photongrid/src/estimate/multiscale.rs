@@ -13,7 +13,8 @@
 
 use super::photon_map::Gather;
 use super::Query;
-use crate::grid::multiscale::{LayerTexture, MultiscaleGrids, ScaleEstimate, Texel, CAUSTIC, DIRECT, INDIRECT};
+use crate::grid::multiscale::{LayerTexture, MultiscaleGrids, Resolved, ScaleEstimate, Texel, CAUSTIC, DIRECT, INDIRECT};
+use rayon::prelude::*;
 use crate::Rgb;
 use glam::Vec3;
 use std::f32::consts::PI;
@@ -79,6 +80,13 @@ const MAX_TILT: f32 = 4.0;
 /// The estimate at the widest scale whose confidence interval meets every finer one's.
 /// `floor` is one photon's variance (an empty kernel is not certain to be dark), `passes`
 /// divides the accumulated sums.
+///
+/// A finer scale's own variance says little where it holds few photons: an empty kernel
+/// beside a lit one has only the floor's, so a wide kernel half over the light still met its
+/// interval and light leaked a kernel's reach into shadows (a quarter of the light beside a
+/// blocker). Each finer scale is therefore also tested against the variance it would have
+/// if the light were as the wider kernel says ([`poisson_variance`]): no photons where the
+/// wider kernel expects dozens ends the widening.
 pub fn choose_scale(
     scales: impl Iterator<Item = ScaleEstimate>,
     gamma: f32,
@@ -87,6 +95,10 @@ pub fn choose_scale(
 ) -> Option<LayerEstimate> {
     let (mut lo, mut hi) = (f32::NEG_INFINITY, f32::INFINITY);
     let mut best = None;
+    // Finer scales so far: (estimate, its variance, its area × passes, leverage).
+    let mut finer: [(f32, f32, f32, f32); 24] = [(0.0, 0.0, 0.0, 0.0); 24];
+    let mut n = 0;
+    let photon_power = floor.sqrt();
     for s in scales {
         let t = s.texel;
         if !(t.area > 0.0) {
@@ -95,11 +107,23 @@ pub fn choose_scale(
         let (tilt, leverage) = local_linear(&t, (1u32 << s.level) as f32);
         let norm = tilt / (t.area * passes);
         let e = luminance(t.flux) * norm;
-        let sigma = ((t.var + floor) * leverage).sqrt() / (t.area * passes);
+        let var = (t.var + floor) * leverage / (t.area * passes).powi(2);
+        let sigma = var.sqrt();
         lo = lo.max(e - gamma * sigma);
         hi = hi.min(e + gamma * sigma);
         if lo > hi {
             break;
+        }
+        let contradicted = finer[..n].iter().any(|&(ef, vf, af, lf)| {
+            let v = vf.max(poisson_variance(e, photon_power, af) * lf);
+            (ef - e).abs() > gamma * v.sqrt()
+        });
+        if contradicted {
+            break;
+        }
+        if n < finer.len() {
+            finer[n] = (e, var, t.area * passes, leverage);
+            n += 1;
         }
         best = Some(LayerEstimate {
             irradiance: Rgb::from(t.flux) * norm,
@@ -109,6 +133,13 @@ pub fn choose_scale(
         });
     }
     best
+}
+
+/// The variance of an irradiance estimate over `area_passes` (kernel area × passes) where
+/// the irradiance is `e` and photons carry `photon_power` each: the flux sum of a Poisson
+/// count of `e · area_passes / photon_power` photons, over `area_passes` squared.
+pub fn poisson_variance(e: f32, photon_power: f32, area_passes: f32) -> f32 {
+    (e.max(0.0) * photon_power / area_passes.max(1e-30)).max(0.0)
 }
 
 /// The confidence-interval widths (standard deviations) of the scale choice: caustics are
@@ -123,6 +154,14 @@ pub struct Gammas {
 }
 
 impl Gammas {
+    /// The widths `settings` ask for.
+    pub fn of_settings(settings: &crate::Settings) -> Self {
+        Gammas {
+            global: settings.ici_threshold,
+            caustic: settings.caustic_ici_threshold,
+        }
+    }
+
     /// The width for photon layer `layer`.
     pub fn of(self, layer: usize) -> f32 {
         if layer == CAUSTIC {
@@ -176,25 +215,71 @@ impl MultiscaleGrids {
         choose_scale(inside, gamma.of(layer), floor, self.passes.max(1) as f32)
     }
 
-    /// Total irradiance (every layer) at a point on a plane, for final-gather rays; None off
-    /// the planes.
-    pub fn irradiance(&self, triangle: u32, p: Vec3, gamma: Gammas) -> Option<Rgb> {
-        let tex = self.texture_of(triangle)?;
+    /// Total irradiance (every layer) at a point on a plane, for final-gather rays: the
+    /// resolved textures where [`MultiscaleGrids::resolve_for_gathering`] built them, else
+    /// the estimate at the point. None off the planes.
+    pub fn irradiance(&self, triangle: u32, p: Vec3, normal: Vec3, gamma: Gammas) -> Option<Rgb> {
+        let tex = self.texture_facing(triangle, normal)?;
         Some(
             [CAUSTIC, INDIRECT, DIRECT]
                 .iter()
-                .filter_map(|&l| self.layer_estimate(tex, l, p, gamma))
-                .map(|e| e.irradiance)
+                .map(|&l| match &tex[l].resolved {
+                    Some(r) => {
+                        let (gx, gy) = tex[l].plane.grid_coords(p);
+                        r.lookup(gx, gy)
+                    }
+                    None => self
+                        .layer_estimate(tex, l, p, gamma)
+                        .map_or(Rgb::ZERO, |e| e.irradiance),
+                })
                 .sum(),
         )
     }
+
+    /// Resolve every layer's estimate at the texel centres of the finest pyramid level with
+    /// at most [`RESOLVED_TEXELS`] texels, for final-gather rays to read
+    /// ([`MultiscaleGrids::irradiance`]). Call after each pass's photons are added.
+    pub fn resolve_for_gathering(&mut self, gamma: Gammas) {
+        let resolved: Vec<Vec<Resolved>> = self
+            .textures
+            .par_iter()
+            .map(|tex| {
+                (0..tex.len())
+                    .map(|l| {
+                        let t = &tex[l];
+                        let (level, w, h) = t.level_within(RESOLVED_TEXELS);
+                        let side = (1u32 << level) as f32;
+                        // Each texel's estimate is taken on its surface (at the centroid of
+                        // the area it covers): a centre off a plane's edge would read a
+                        // sliver of surface as a kernel and give every ray nearby its noise.
+                        let values = (0..w * h)
+                            .map(|i| {
+                                let (x, y) = t.texel_centroid(level, i)?;
+                                let p = t.plane.grid_to_world(x, y);
+                                self.layer_estimate(tex, l, p, gamma).map(|e| e.irradiance)
+                            })
+                            .collect();
+                        Resolved { side, w, h, values }
+                    })
+                    .collect()
+            })
+            .collect();
+        for (tex, r) in self.textures.iter_mut().zip(resolved) {
+            for (t, r) in tex.iter_mut().zip(r) {
+                t.resolved = Some(r);
+            }
+        }
+    }
 }
+
+/// Texels of a layer's resolved irradiance per plane, at most: the paper's 128 × 128.
+pub const RESOLVED_TEXELS: usize = 128 * 128;
 
 /// The photons' irradiance at a visible point `q` as a [`Gather`] (flux over a disc of the
 /// kernel's area): caustics always, direct light when `direct` (the single-map setting), and
 /// indirect light unless final gathering (`gathering`) does better here. None off the planes.
 pub fn gather(grids: &MultiscaleGrids, q: &Query, gamma: Gammas, direct: bool, gathering: bool) -> Option<Gather> {
-    let tex = grids.texture_of(q.triangle)?;
+    let tex = grids.texture_facing(q.triangle, q.facing_normal)?;
     let mut e = Rgb::ZERO;
     let (mut area, mut count) = (0.0f32, 0.0f32);
     let mut add = |l: &LayerEstimate| {

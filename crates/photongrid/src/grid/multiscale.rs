@@ -169,6 +169,60 @@ pub struct LayerTexture {
     pub plane: Plane,
     /// Level 0 (finest) upwards.
     levels: Vec<Level>,
+    /// The layer's estimate resolved on a coarse texture for final-gather rays (set after
+    /// the pyramid is rebuilt; see `MultiscaleGrids::resolve_for_gathering`).
+    pub resolved: Option<Resolved>,
+}
+
+/// A layer's irradiance resolved at the texel centres of one pyramid level. Final-gather
+/// rays read it bilinearly: choosing a scale for each of millions of rays took most of a
+/// camera pass, and gathering averages the light it reads anyway.
+#[derive(Clone, Debug, Default)]
+pub struct Resolved {
+    /// Texel side in fine cells.
+    pub side: f32,
+    /// Texels along u and v.
+    pub w: usize,
+    /// Texels along v.
+    pub h: usize,
+    /// Irradiance per texel (row-major); None where no kernel covers surface.
+    pub values: Vec<Option<Rgb>>,
+}
+
+impl Resolved {
+    /// Bilinear read at fine grid coordinates `(gx, gy)`, over the texels that hold an
+    /// estimate (their weights renormalised), so that light does not fade towards a
+    /// plane's edge; zero where none does.
+    pub fn lookup(&self, gx: f32, gy: f32) -> Rgb {
+        if self.w == 0 || self.h == 0 {
+            return Rgb::ZERO;
+        }
+        let axis = |g: f32, n: usize| {
+            let t = (g / self.side - 0.5).clamp(0.0, (n - 1) as f32);
+            let i0 = (t as usize).min(n - 1);
+            let i1 = (i0 + 1).min(n - 1);
+            (i0, i1, t - i0 as f32)
+        };
+        let (i0, i1, fx) = axis(gx, self.w);
+        let (j0, j1, fy) = axis(gy, self.h);
+        let (mut sum, mut weight) = (Rgb::ZERO, 0.0f32);
+        for (i, j, w) in [
+            (i0, j0, (1.0 - fx) * (1.0 - fy)),
+            (i1, j0, fx * (1.0 - fy)),
+            (i0, j1, (1.0 - fx) * fy),
+            (i1, j1, fx * fy),
+        ] {
+            if let Some(v) = self.values[j * self.w + i] {
+                sum += v * w;
+                weight += w;
+            }
+        }
+        if weight > 0.0 {
+            sum / weight
+        } else {
+            Rgb::ZERO
+        }
+    }
 }
 
 impl LayerTexture {
@@ -181,6 +235,7 @@ impl LayerTexture {
         LayerTexture {
             plane,
             levels: vec![level],
+            resolved: None,
         }
     }
 
@@ -207,6 +262,31 @@ impl LayerTexture {
         1.5 * cell * (1u64 << level) as f32
     }
 
+    /// The finest level with at most `max_texels` texels, and its size.
+    pub fn level_within(&self, max_texels: usize) -> (usize, usize, usize) {
+        let mut best = self.levels.len() - 1;
+        for (l, lv) in self.levels.iter().enumerate() {
+            if lv.w * lv.h <= max_texels {
+                best = l;
+                break;
+            }
+        }
+        (best, self.levels[best].w, self.levels[best].h)
+    }
+
+    /// Where the surface within texel `i` of `level` lies: the centroid of its covered area
+    /// in fine grid coordinates; None where the texel covers no surface.
+    pub fn texel_centroid(&self, level: usize, i: usize) -> Option<(f32, f32)> {
+        let lv = &self.levels[level];
+        let t = &lv.texels[i];
+        if !(t.area > 0.0) {
+            return None;
+        }
+        let side = (1u32 << level) as f32;
+        let (x, y) = ((i % lv.w) as f32 + 0.5, (i / lv.w) as f32 + 0.5);
+        Some((x * side + t.area_moment[0] / t.area, y * side + t.area_moment[1] / t.area))
+    }
+
     /// Kernel sums at `p` on every level, finest first.
     pub fn scales(&self, p: Vec3) -> impl Iterator<Item = ScaleEstimate> + '_ {
         let (gx, gy) = self.plane.grid_coords(p);
@@ -220,6 +300,9 @@ impl LayerTexture {
     }
 
     fn add_photon(&mut self, p: &Photon) {
+        if !crate::estimate::photon_map::faces(p.normal(), self.plane.normal) {
+            return; // the plane's other side (see `orient_to_the_light`)
+        }
         let Some(cell) = self.plane.cell_of(p.pos(), f32::INFINITY) else {
             return;
         };
@@ -240,6 +323,7 @@ impl LayerTexture {
 
     /// Rebuild the coarser levels from level 0, up to one texel along the shorter side.
     fn rebuild(&mut self) {
+        self.resolved = None;
         self.levels.truncate(1);
         while {
             let l = self.levels.last().expect("level 0");
@@ -318,6 +402,25 @@ pub struct Probes<'a> {
     pub clearance: &'a (dyn Fn(Vec3, Vec3) -> f32 + Sync),
 }
 
+/// Turn each plane's normal towards the side most of its photons arrive on. A plane's
+/// textures hold the light of that side only: a thin double-sided quad lit from above and
+/// seen from below (a blocker, a shelf made of one quad) must not show its top's light
+/// underneath; queries from the other side fall back to the photon map.
+fn orient_to_the_light(set: &mut PlaneSet, photons: &[Photon], triangles: &[u32]) {
+    let mut side = vec![0i64; set.planes.len()];
+    for (p, &t) in photons.iter().zip(triangles) {
+        let plane = set.plane_of_triangle.get(t as usize).copied().unwrap_or(NO_PLANE);
+        if plane != NO_PLANE {
+            side[plane as usize] += if p.normal().dot(set.planes[plane as usize].normal) >= 0.0 { 1 } else { -1 };
+        }
+    }
+    for (plane, s) in set.planes.iter_mut().zip(side) {
+        if s < 0 {
+            plane.normal = -plane.normal;
+        }
+    }
+}
+
 /// Per fine cell of `plane`: a photon landed in it or in one of its eight neighbours.
 fn lit_cells(plane: &Plane, landed: &[Vec3]) -> Vec<bool> {
     let (w, h) = (plane.res_u, plane.res_v);
@@ -346,13 +449,14 @@ impl MultiscaleGrids {
     /// Size every plane's layers from the first pass's photons (landing on `triangles[i]`)
     /// and count them; `probes` find buried area and the clearance in front of the planes.
     pub fn build(
-        set: PlaneSet,
+        mut set: PlaneSet,
         tris: &[[Vec3; 3]],
         photons: &[Photon],
         triangles: &[u32],
         params: &MultiscaleParams,
         probes: &Probes<'_>,
     ) -> Self {
+        orient_to_the_light(&mut set, photons, triangles);
         let dims = fine_resolutions(&set, photons, triangles, params);
         // Where photons land, nothing rests on the plane: they veto the buried test, whose
         // rays can be fooled by open or one-sided meshes.
@@ -428,6 +532,13 @@ impl MultiscaleGrids {
             Some(&p) if p != NO_PLANE => self.textures.get(p as usize),
             _ => None,
         }
+    }
+
+    /// The layer textures serving the side of `triangle` that `normal` faces, if any: a
+    /// plane's textures hold its lit side only (`orient_to_the_light`).
+    pub fn texture_facing(&self, triangle: u32, normal: Vec3) -> Option<&[LayerTexture; LAYERS]> {
+        self.texture_of(triangle)
+            .filter(|t| crate::estimate::photon_map::faces(normal, t[0].plane.normal))
     }
 
     /// Memory of the textures.
