@@ -257,7 +257,9 @@ pub const CAUSTICS_FIRST_SHARE: f64 = 0.1;
 /// much of the light ([`CAUSTICS_FIRST_SHARE`]) the caustic photons are given up only after
 /// the samples: a caustic's sharpness depends on them alone (passes average images, they do
 /// not narrow the kernels), and they are cheap (most paths store one photon and need no
-/// irradiance). Photons freed time comes back to caustic photons first.
+/// irradiance); time freed then goes to caustic photons first. Elsewhere both kinds of photon
+/// shrink alike: the multiscale estimate shows global photons' light directly, and caustic
+/// photons bought at their expense darkened a scene whose caustics carry 0.4 % of the light.
 pub fn shrink(costs: &Costs, target: f64, requested: PassSize) -> PassSize {
     let paths = requested.paths().max(1) as f64;
     let floor =
@@ -271,7 +273,7 @@ pub fn shrink(costs: &Costs, target: f64, requested: PassSize) -> PassSize {
     };
     // Caustic photons first (down to `c_lo`) with the global ones at `g_lo`, then the global
     // ones in what is left.
-    let refill = |size: PassSize, g_lo: usize, c_lo: usize| {
+    let caustics_first = |size: PassSize, g_lo: usize, c_lo: usize| {
         let at_lo = PassSize {
             photons: g_lo,
             caustic_photons: 0,
@@ -295,9 +297,39 @@ pub fn shrink(costs: &Costs, target: f64, requested: PassSize) -> PassSize {
             ..size
         }
     };
+    // Both kinds scaled alike from the requested ones, neither below its floor.
+    let alike = |size: PassSize, g_lo: usize, c_lo: usize| {
+        let at = |s: f64| PassSize {
+            photons: ((requested.photons as f64 * s).round() as usize).clamp(g_lo, requested.photons.max(g_lo)),
+            caustic_photons: ((requested.caustic_photons as f64 * s).round() as usize)
+                .clamp(c_lo, requested.caustic_photons.max(c_lo)),
+            ..size
+        };
+        let (mut lo, mut hi) = (0.0f64, 1.0f64);
+        if !over(&at(hi)) {
+            return at(hi);
+        }
+        for _ in 0..48 {
+            let mid = 0.5 * (lo + hi);
+            if over(&at(mid)) {
+                hi = mid;
+            } else {
+                lo = mid;
+            }
+        }
+        at(lo)
+    };
+    let caustic_heavy = costs.caustic_share >= CAUSTICS_FIRST_SHARE;
+    let refill = |size: PassSize, g_lo: usize, c_lo: usize| {
+        if caustic_heavy {
+            caustics_first(size, g_lo, c_lo)
+        } else {
+            alike(size, g_lo, c_lo)
+        }
+    };
     let g_lo = floor(requested.photons, PHOTON_FLOOR_SHARE);
     let c_lo = floor(requested.caustic_photons, PHOTON_FLOOR_SHARE);
-    let c_first = if costs.caustic_share >= CAUSTICS_FIRST_SHARE {
+    let c_first = if caustic_heavy {
         requested.caustic_photons
     } else {
         c_lo
@@ -538,13 +570,16 @@ mod tests {
             pixels: 307200,
             probe_seconds: 0.338,
         };
+        // Caustics carry 5 % of the light here: both kinds shrink alike (0.3 of the request).
         let exact = PassSize {
-            photons: 481_577,
+            photons: 600_000,
+            caustic_photons: 300_000,
             spp: 2,
             ..requested()
         };
         let p = shrink(&c, c.pass_seconds(&exact), requested());
-        assert_eq!((p.spp, p.gather, p.caustic_photons), (2, 8, 1_000_000), "{p:?}");
-        assert!(p.photons.abs_diff(exact.photons) <= 1, "{p:?}");
+        assert_eq!((p.spp, p.gather), (2, 8), "{p:?}");
+        assert!(p.photons.abs_diff(exact.photons) <= 2, "{p:?}");
+        assert!(p.caustic_photons.abs_diff(exact.caustic_photons) <= 1, "{p:?}");
     }
 }
