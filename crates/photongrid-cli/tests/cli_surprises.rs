@@ -649,3 +649,26 @@ fn irradiance_shows_a_spinner_on_a_terminal() {
     assert!(spinner, "no irradiance spinner in:\n{screen}");
     assert!(out.is_file());
 }
+
+#[test]
+fn a_reader_that_stops_early_ends_the_command_quietly() {
+    // `photongrid info … | head -1`: the pipe closes before the output is written. The
+    // command must end with success and no panic message, as other command-line tools do.
+    let samples = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../samples");
+    let scenes: Vec<PathBuf> = ["cornell_glass.glb", "ring_caustic.glb", "curved_3d.glb"]
+        .iter()
+        .map(|f| samples.join(f))
+        .collect();
+    let mut child = Command::new(BIN)
+        .arg("info")
+        .args(&scenes)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "status {:?}: {err}", out.status);
+    assert!(!err.contains("panicked"), "{err}");
+}

@@ -418,4 +418,58 @@ mod tests {
             );
         }
     }
+
+    /// A thin quad lit by 1 W/m² on top, with a third as many photons landing underneath at
+    /// 3 W/m²: the textures keep the top's light only (the underside is the photon map's), and
+    /// final-gather rays reading the resolved texture see what the point estimate says.
+    #[test]
+    fn a_plane_keeps_its_lit_side_and_gather_rays_read_its_estimate() {
+        use crate::grid::multiscale::{MultiscaleParams, Probes};
+        use crate::grid::planes::{detect_planes, PlaneParams};
+        use crate::photon::{Photon, PhotonKind};
+        use crate::sampling::Rng;
+        let p = |x: f32, z: f32| Vec3::new(x, 0.0, z);
+        let tris = vec![
+            [p(0.0, 0.0), p(0.0, 2.0), p(2.0, 2.0)],
+            [p(0.0, 0.0), p(2.0, 2.0), p(2.0, 0.0)],
+        ];
+        let set = detect_planes(&tris, &PlaneParams::default());
+        let mut rng = Rng::keyed(9, 4, 1);
+        let (n_top, n_under) = (300_000, 100_000);
+        let (mut photons, mut tri) = (Vec::new(), Vec::new());
+        for i in 0..n_top + n_under {
+            let (x, z) = (rng.uniform() * 2.0, rng.uniform() * 2.0);
+            let (normal, power) = if i < n_top {
+                (Vec3::Y, 4.0 / n_top as f32)
+            } else {
+                (-Vec3::Y, 12.0 / n_under as f32)
+            };
+            photons.push(Photon::new(p(x, z), Rgb::splat(power), normal, normal, PhotonKind::Direct));
+            tri.push(if z > x { 0 } else { 1 });
+        }
+        let probes = Probes {
+            buried: &|_, _| false,
+            clearance: &|_, _| f32::INFINITY,
+        };
+        let params = MultiscaleParams {
+            max_radius: 0.5,
+            ..MultiscaleParams::default()
+        };
+        let mut g = MultiscaleGrids::build(set, &tris, &photons, &tri, &params, &probes);
+        let gamma = Gammas {
+            global: 2.0,
+            caustic: 1.25,
+        };
+        for q in [p(1.0, 1.0), p(0.3, 1.7), p(1.99, 0.01)] {
+            assert_eq!(g.irradiance(0, q, -Vec3::Y, gamma), None, "underside at {q}");
+            let at_point = g.irradiance(0, q, Vec3::Y, gamma).unwrap().x;
+            assert!((at_point - 1.0).abs() < 0.05, "{q}: {at_point} W/m² on top");
+        }
+        g.resolve_for_gathering(gamma);
+        for q in [p(1.0, 1.0), p(0.3, 1.7), p(1.99, 0.01), p(0.0, 0.0)] {
+            let read = g.irradiance(1, q, Vec3::Y, gamma).unwrap().x;
+            assert!((read - 1.0).abs() < 0.05, "{q}: {read} W/m² read by a gather ray");
+        }
+    }
+
 }
