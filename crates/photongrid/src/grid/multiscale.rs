@@ -174,14 +174,15 @@ pub struct LayerTexture {
     pub resolved: Option<Resolved>,
 }
 
-/// A layer's irradiance resolved at the texel centres of one pyramid level. Final-gather
+/// A layer's irradiance resolved per texel of one pyramid level (at the centroid of the
+/// surface each texel covers). Final-gather
 /// rays read it bilinearly: choosing a scale for each of millions of rays took most of a
 /// camera pass, and gathering averages the light it reads anyway.
 #[derive(Clone, Debug, Default)]
 pub struct Resolved {
     /// Texel side in fine cells.
     pub side: f32,
-    /// Texels along u and v.
+    /// Texels along u.
     pub w: usize,
     /// Texels along v.
     pub h: usize,
