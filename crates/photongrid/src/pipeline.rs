@@ -1033,37 +1033,27 @@ fn irradiance_cache(
     max_radius: f32,
 ) -> IrradianceCache {
     // A gathered photon's light reaches the camera one bounce later than a photon shown
-    // directly: keep the paths within `max_depth` segments (`Settings::gathered`).
-    let gathered: Vec<Photon> = photons
-        .iter()
-        .filter(|p| settings.gathered(p.depth()))
-        .copied()
-        .collect();
-    // Gather rays that land on a multiscale plane read the pyramids: precompute only
-    // where the rest land.
-    let off_grid: Option<Vec<Photon>> = multiscale.map(|g| {
-        photons
+    // directly: keep the paths within `max_depth` segments (`Settings::gathered`). Gather
+    // rays that land on a multiscale plane's lit side read the pyramids, so only the other
+    // photons are indexed and turned into irradiance points.
+    let gathered: Vec<Photon> = match multiscale {
+        Some(g) => photons
             .iter()
             .zip(photon_triangles)
-            .step_by(settings.gather_stride.max(1))
             .filter(|(p, &t)| settings.gathered(p.depth()) && g.texture_facing(t, p.normal()).is_none())
             .map(|(p, _)| *p)
-            .collect()
-    });
+            .collect(),
+        None => photons.iter().filter(|p| settings.gathered(p.depth())).copied().collect(),
+    };
     let all = PhotonMap::build(gathered, settings.gather_neighbours, scene.surface_area(), max_radius);
-    match off_grid {
-        Some(sites) => IrradianceCache::build_at(&all, &sites, settings.gather_neighbours, scene.surface_area()),
-        None => IrradianceCache::build(
-            &all,
-            settings.gather_neighbours,
-            settings.gather_stride,
-            scene.surface_area(),
-        ),
-    }
+    IrradianceCache::build(
+        &all,
+        settings.gather_neighbours,
+        settings.gather_stride,
+        scene.surface_area(),
+    )
 }
 
-/// The photons the camera pass estimates directly (with their triangles, when recorded):
-/// caustics always; direct light only in the single-map setting; indirect light unless final
 /// gathering reads it from precomputed irradiance instead.
 fn shown_photons(settings: &Settings, photons: Vec<Photon>, triangles: Vec<u32>) -> (Vec<Photon>, Vec<u32>) {
     let direct_photons = settings.direct == DirectLighting::Photons;

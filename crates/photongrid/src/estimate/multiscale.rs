@@ -240,6 +240,7 @@ impl MultiscaleGrids {
     /// at most [`RESOLVED_TEXELS`] texels, for final-gather rays to read
     /// ([`MultiscaleGrids::irradiance`]). Call after each pass's photons are added.
     pub fn resolve_for_gathering(&mut self, gamma: Gammas) {
+        let started = std::time::Instant::now();
         let resolved: Vec<Vec<Resolved>> = self
             .textures
             .par_iter()
@@ -269,6 +270,7 @@ impl MultiscaleGrids {
                 t.resolved = Some(r);
             }
         }
+        tracing::debug!(seconds = started.elapsed().as_secs_f64(), "multiscale estimate resolved for gathering");
     }
 }
 

@@ -403,6 +403,45 @@ pub struct Probes<'a> {
     pub clearance: &'a (dyn Fn(Vec3, Vec3) -> f32 + Sync),
 }
 
+/// Fine cells per side of the blocks that share one clearance probe: the clearance bounds
+/// kernels that reach 1.5 texels and more, so placing it to a few fine cells is enough, and
+/// probing every cell (five rays each) took most of the grids' build.
+const CLEARANCE_BLOCK: usize = 4;
+
+/// The open space in front of each covered cell of `plane` (`Texel::clearance`), probed once
+/// per block of [`CLEARANCE_BLOCK`]² cells at the centroid of its covered cells' centres.
+fn set_clearance(plane: &Plane, cells: &mut [Texel], clearance: &(dyn Fn(Vec3, Vec3) -> f32 + Sync)) {
+    let (w, h) = (plane.res_u, plane.res_v);
+    let (bw, bh) = (w.div_ceil(CLEARANCE_BLOCK), h.div_ceil(CLEARANCE_BLOCK));
+    let cells_of = |b: usize| {
+        let (bx, by) = (b % bw * CLEARANCE_BLOCK, b / bw * CLEARANCE_BLOCK);
+        (by..(by + CLEARANCE_BLOCK).min(h)).flat_map(move |y| (bx..(bx + CLEARANCE_BLOCK).min(w)).map(move |x| y * w + x))
+    };
+    let probed: Vec<f32> = (0..bw * bh)
+        .into_par_iter()
+        .map(|b| {
+            let (mut sum, mut n) = ((0.0f32, 0.0f32), 0.0f32);
+            for c in cells_of(b).filter(|&c| cells[c].area > 0.0) {
+                sum.0 += (c % w) as f32 + 0.5;
+                sum.1 += (c / w) as f32 + 0.5;
+                n += 1.0;
+            }
+            if n > 0.0 {
+                clearance(plane.grid_to_world(sum.0 / n, sum.1 / n), plane.normal)
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    for (b, &c) in probed.iter().enumerate() {
+        for cell in cells_of(b) {
+            if cells[cell].area > 0.0 {
+                cells[cell].clearance = c;
+            }
+        }
+    }
+}
+
 /// Turn each plane's normal towards the side most of its photons arrive on. A plane's
 /// textures hold the light of that side only: a thin double-sided quad lit from above and
 /// seen from below (a blocker, a shelf made of one quad) must not show its top's light
@@ -468,6 +507,7 @@ impl MultiscaleGrids {
                 landed[plane as usize].push(p.pos());
             }
         }
+        let started = std::time::Instant::now();
         let textures: Vec<[LayerTexture; LAYERS]> = set
             .planes
             .par_iter()
@@ -479,19 +519,24 @@ impl MultiscaleGrids {
                     let plane = p.clone().with_resolution(ru, rv);
                     let mut area = coverage(&plane, tris);
                     let lit = lit_cells(&plane, landed);
-                    for (cell, a) in area.iter_mut().enumerate() {
+                    area.par_iter_mut().enumerate().for_each(|(cell, a)| {
                         if a.area > 0.0 && !lit[cell] && (probes.buried)(plane.cell_center(cell), plane.normal) {
                             *a = Texel::default();
                         }
-                        // Only the camera's indirect estimate asks how far a kernel may reach.
-                        if l == INDIRECT && a.area > 0.0 {
-                            a.clearance = (probes.clearance)(plane.cell_center(cell), plane.normal);
-                        }
+                    });
+                    // Only the indirect estimate asks how far a kernel may reach.
+                    if l == INDIRECT {
+                        set_clearance(&plane, &mut area, probes.clearance);
                     }
                     LayerTexture::new(plane, area)
                 })
             })
             .collect();
+        tracing::debug!(
+            seconds = started.elapsed().as_secs_f64(),
+            cells = textures.iter().flatten().map(|t| t.levels[0].texels.len()).sum::<usize>(),
+            "multiscale textures sized, covered and probed"
+        );
         let mut g = MultiscaleGrids {
             set,
             textures,
@@ -505,26 +550,42 @@ impl MultiscaleGrids {
 
     /// Add one pass's photons and rebuild the pyramids.
     pub fn add(&mut self, photons: &[Photon], triangles: &[u32]) {
+        let started = std::time::Instant::now();
         let (mut power, mut n) = ([0.0f64; LAYERS], [0usize; LAYERS]);
-        for (p, &t) in photons.iter().zip(triangles) {
+        let mut on_plane: Vec<Vec<u32>> = vec![Vec::new(); self.textures.len()];
+        for (i, (p, &t)) in photons.iter().zip(triangles).enumerate() {
             let layer = layer_of(p.kind());
             power[layer] += luminance(p.power()) as f64;
             n[layer] += 1;
             let plane = self.set.plane_of_triangle.get(t as usize).copied().unwrap_or(NO_PLANE);
             if plane != NO_PLANE {
-                self.textures[plane as usize][layer].add_photon(p);
+                on_plane[plane as usize].push(i as u32);
             }
         }
+        // Each plane counts its own photons (in the order they were traced: deterministic).
+        self.textures.par_iter_mut().zip(on_plane).for_each(|(tex, ids)| {
+            for i in ids {
+                let p = &photons[i as usize];
+                tex[layer_of(p.kind())].add_photon(p);
+            }
+        });
         self.passes += 1;
         for l in 0..LAYERS {
             // Running mean of the per-pass mean power.
             let mean = if n[l] > 0 { (power[l] / n[l] as f64) as f32 } else { 0.0 };
             self.mean_power[l] += (mean - self.mean_power[l]) / self.passes as f32;
         }
+        let counted = started.elapsed().as_secs_f64();
         self.textures
             .par_iter_mut()
             .flat_map(|t| t.par_iter_mut())
             .for_each(LayerTexture::rebuild);
+        tracing::debug!(
+            counted,
+            seconds = started.elapsed().as_secs_f64(),
+            photons = photons.len(),
+            "multiscale photons counted and pyramids rebuilt"
+        );
     }
 
     /// The layer textures serving `triangle`, if any.
