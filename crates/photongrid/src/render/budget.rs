@@ -264,94 +264,125 @@ pub fn shrink(costs: &Costs, target: f64, requested: PassSize) -> PassSize {
     let paths = requested.paths().max(1) as f64;
     let floor =
         |n: usize, share: f64| ((n as f64 * share).max(MIN_PATHS as f64 * n as f64 / paths).round() as usize).min(n);
-    // Photon counts are rounded: a pass that fills the target exactly may be over it by a photon.
-    let slack = 2.0 * costs.per_path.max(costs.per_caustic_path) + 1e-9 * target;
-    let over = |size: &PassSize| costs.pass_seconds(size) > target + slack;
-    // The most photons of one kind, within [lo, requested], that fit beside the rest of `size`.
-    let most = |rest: f64, per: f64, lo: usize, hi: usize| {
-        (((target - rest) / per.max(1e-12)).floor().max(0.0).min(hi as f64) as usize).max(lo)
-    };
-    // Caustic photons first (down to `c_lo`) with the global ones at `g_lo`, then the global
-    // ones in what is left.
-    let caustics_first = |size: PassSize, g_lo: usize, c_lo: usize| {
-        let at_lo = PassSize {
-            photons: g_lo,
-            caustic_photons: 0,
-            ..size
-        };
-        let caustic = most(
-            costs.pass_seconds(&at_lo),
-            costs.per_caustic_path,
-            c_lo,
-            requested.caustic_photons,
-        );
-        let without = PassSize {
-            photons: 0,
-            caustic_photons: caustic,
-            ..size
-        };
-        let photons = most(costs.pass_seconds(&without), costs.per_path, g_lo, requested.photons);
-        PassSize {
-            photons,
-            caustic_photons: caustic,
-            ..size
-        }
-    };
-    // Both kinds scaled alike from the requested ones, neither below its floor.
-    let alike = |size: PassSize, g_lo: usize, c_lo: usize| {
-        let at = |s: f64| PassSize {
-            photons: ((requested.photons as f64 * s).round() as usize).clamp(g_lo, requested.photons.max(g_lo)),
-            caustic_photons: ((requested.caustic_photons as f64 * s).round() as usize)
-                .clamp(c_lo, requested.caustic_photons.max(c_lo)),
-            ..size
-        };
-        let (mut lo, mut hi) = (0.0f64, 1.0f64);
-        if !over(&at(hi)) {
-            return at(hi);
-        }
-        for _ in 0..48 {
-            let mid = 0.5 * (lo + hi);
-            if over(&at(mid)) {
-                hi = mid;
-            } else {
-                lo = mid;
-            }
-        }
-        at(lo)
-    };
-    let caustic_heavy = costs.caustic_share >= CAUSTICS_FIRST_SHARE;
-    let refill = |size: PassSize, g_lo: usize, c_lo: usize| {
-        if caustic_heavy {
-            caustics_first(size, g_lo, c_lo)
-        } else {
-            alike(size, g_lo, c_lo)
-        }
+    let fit = Fit {
+        costs,
+        target,
+        requested,
+        // Photon counts are rounded: a pass that fills the target exactly may be over it by a
+        // photon.
+        slack: 2.0 * costs.per_path.max(costs.per_caustic_path) + 1e-9 * target,
+        caustic_heavy: costs.caustic_share >= CAUSTICS_FIRST_SHARE,
     };
     let g_lo = floor(requested.photons, PHOTON_FLOOR_SHARE);
     let c_lo = floor(requested.caustic_photons, PHOTON_FLOOR_SHARE);
-    let c_first = if caustic_heavy {
+    let c_first = if fit.caustic_heavy {
         requested.caustic_photons
     } else {
         c_lo
     };
-    let mut size = refill(requested, g_lo, c_first);
-    while size.spp > 1 && over(&size) {
+    let mut size = fit.refill(requested, g_lo, c_first);
+    while size.spp > 1 && fit.over(&size) {
         size.spp -= 1;
-        size = refill(size, g_lo, c_first);
+        size = fit.refill(size, g_lo, c_first);
     }
-    size = refill(size, g_lo, c_lo);
-    while size.gather > 1 && over(&size) {
+    size = fit.refill(size, g_lo, c_lo);
+    while size.gather > 1 && fit.over(&size) {
         size.gather -= 1;
-        size = refill(size, g_lo, c_lo);
+        size = fit.refill(size, g_lo, c_lo);
     }
-    if over(&size) {
-        size = refill(
+    if fit.over(&size) {
+        size = fit.refill(
             size,
             floor(requested.photons, 0.0),
             floor(requested.caustic_photons, 0.0),
         );
     }
     size
+}
+
+/// The photon counts of a pass fitted into `target` seconds ([`shrink`]'s steps).
+struct Fit<'a> {
+    costs: &'a Costs,
+    target: f64,
+    requested: PassSize,
+    slack: f64,
+    caustic_heavy: bool,
+}
+
+impl Fit<'_> {
+    fn over(&self, size: &PassSize) -> bool {
+        self.costs.pass_seconds(size) > self.target + self.slack
+    }
+
+    /// The most photons of one kind, within [lo, hi], that fit beside `rest` seconds.
+    fn most(&self, rest: f64, per: f64, lo: usize, hi: usize) -> usize {
+        (((self.target - rest) / per.max(1e-12)).floor().max(0.0).min(hi as f64) as usize).max(lo)
+    }
+
+    /// The most photons, neither kind below its floor (`g_lo`, `c_lo`), beside `size`'s
+    /// samples and gather rays.
+    fn refill(&self, size: PassSize, g_lo: usize, c_lo: usize) -> PassSize {
+        if self.caustic_heavy {
+            self.caustics_first(size, g_lo, c_lo)
+        } else {
+            self.alike(size, g_lo, c_lo)
+        }
+    }
+
+    /// Caustic photons first (down to `c_lo`) with the global ones at `g_lo`, then the global
+    /// ones in what is left.
+    fn caustics_first(&self, size: PassSize, g_lo: usize, c_lo: usize) -> PassSize {
+        let at_lo = PassSize {
+            photons: g_lo,
+            caustic_photons: 0,
+            ..size
+        };
+        let caustic = self.most(
+            self.costs.pass_seconds(&at_lo),
+            self.costs.per_caustic_path,
+            c_lo,
+            self.requested.caustic_photons,
+        );
+        let without = PassSize {
+            photons: 0,
+            caustic_photons: caustic,
+            ..size
+        };
+        let photons = self.most(
+            self.costs.pass_seconds(&without),
+            self.costs.per_path,
+            g_lo,
+            self.requested.photons,
+        );
+        PassSize {
+            photons,
+            caustic_photons: caustic,
+            ..size
+        }
+    }
+
+    /// Both kinds scaled alike from the requested ones, neither below its floor.
+    fn alike(&self, size: PassSize, g_lo: usize, c_lo: usize) -> PassSize {
+        let r = self.requested;
+        let at = |s: f64| PassSize {
+            photons: ((r.photons as f64 * s).round() as usize).clamp(g_lo, r.photons.max(g_lo)),
+            caustic_photons: ((r.caustic_photons as f64 * s).round() as usize).clamp(c_lo, r.caustic_photons.max(c_lo)),
+            ..size
+        };
+        if !self.over(&at(1.0)) {
+            return at(1.0);
+        }
+        let (mut lo, mut hi) = (0.0f64, 1.0f64);
+        for _ in 0..48 {
+            let mid = 0.5 * (lo + hi);
+            if self.over(&at(mid)) {
+                hi = mid;
+            } else {
+                lo = mid;
+            }
+        }
+        at(lo)
+    }
 }
 
 #[cfg(test)]
