@@ -467,7 +467,11 @@ mod tests {
             let at_point = g.irradiance(0, q, Vec3::Y, gamma).unwrap().x;
             assert!((at_point - 1.0).abs() < 0.05, "{q}: {at_point} W/m² on top");
         }
+        // Reports say which side the plane's textures hold, and what gathering reads.
+        assert!(g.describe()[0].contains("lit side facing (0.00, 1.00, 0.00)"), "{:?}", g.describe());
+        assert!(!g.describe()[0].contains("gathering reads"));
         g.resolve_for_gathering(gamma);
+        assert!(g.describe()[0].contains("gathering reads"), "{:?}", g.describe());
         for q in [p(1.0, 1.0), p(0.3, 1.7), p(1.99, 0.01), p(0.0, 0.0)] {
             let read = g.irradiance(1, q, Vec3::Y, gamma).unwrap().x;
             assert!((read - 1.0).abs() < 0.05, "{q}: {read} W/m² read by a gather ray");

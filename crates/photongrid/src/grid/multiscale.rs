@@ -608,7 +608,9 @@ impl MultiscaleGrids {
         self.textures.iter().flatten().map(LayerTexture::memory_bytes).sum()
     }
 
-    /// One line per plane for reports: size, fine cells of each layer.
+    /// One line per plane for reports: size, the side whose light it holds, and each layer's
+    /// fine cells (sized for about `--cell-photons` photons where that layer is densest, within
+    /// `--grid-cells`) with the texture final-gather rays read.
     pub fn describe(&self) -> Vec<String> {
         self.textures
             .iter()
@@ -616,21 +618,32 @@ impl MultiscaleGrids {
             .map(|(i, t)| {
                 let p = &t[0].plane;
                 let layer = |l: &LayerTexture| {
+                    let read = l
+                        .resolved
+                        .as_ref()
+                        .map(|r| format!(", gathering reads {}×{}", r.w, r.h))
+                        .unwrap_or_default();
                     format!(
-                        "{}×{} cells of {:.1} mm",
+                        "{}×{} cells of {:.1} mm{read}",
                         l.plane.res_u,
                         l.plane.res_v,
                         l.cell_size() * 1e3
                     )
                 };
-                let covered: f64 = t[1].levels[0].texels.iter().map(|c| c.area as f64).sum();
+                let covered: f64 = t[INDIRECT].levels[0].texels.iter().map(|c| c.area as f64).sum();
+                let n = p.normal;
                 format!(
-                    "plane {i}: {:.2} × {:.2} m, {:.3} m² receiving; caustic layer {}; global layer {}",
+                    "plane {i}: {:.2} × {:.2} m, {:.3} m² receiving, lit side facing ({:.2}, {:.2}, {:.2}); \
+                     caustic layer {}; indirect layer {}; direct layer {}",
                     p.size_u,
                     p.size_v,
                     covered,
-                    layer(&t[0]),
-                    layer(&t[1])
+                    n.x,
+                    n.y,
+                    n.z,
+                    layer(&t[CAUSTIC]),
+                    layer(&t[INDIRECT]),
+                    layer(&t[DIRECT])
                 )
             })
             .collect()
