@@ -10,10 +10,10 @@ use photongrid::progress::Progress;
 use photongrid::scene::gltf::{load_with, LoadOptions};
 use photongrid::settings::parse_seconds_or_zero;
 use photongrid::Settings;
-use photongrid_cli::{out, outln};
 use photongrid_cli::metrics::read_exr_rgb;
 use photongrid_cli::paths::{self, Format};
 use photongrid_cli::progress::{emit_json, Display, ProgressMode};
+use photongrid_cli::{out, outln};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -1078,7 +1078,9 @@ fn compare(image: &Path, reference: &Path, mask: Option<&Path>, block: usize, js
         outln!("mean_lum_ratio        {}", f(s.mean_lum_ratio));
         outln!(
             "rgb_mean_ratio        {:.4} {:.4} {:.4}",
-            s.rgb_mean_ratio[0], s.rgb_mean_ratio[1], s.rgb_mean_ratio[2]
+            s.rgb_mean_ratio[0],
+            s.rgb_mean_ratio[1],
+            s.rgb_mean_ratio[2]
         );
         outln!("rel_rmse              {}", f(s.rel_rmse));
         outln!("block_rel_rmse        {}  (block {})", f(s.block_rel_rmse), s.block);

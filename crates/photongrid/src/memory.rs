@@ -338,7 +338,11 @@ fn grid_items(items: &mut Items, settings: &Settings, stored: u64) {
     if needs.multiscale {
         let cells = settings.multiscale_cells(stored as usize);
         items.add(
-            format!("multiscale grids ({cells} cells: --grid-cells {}, at most {} a stored photon)", settings.grid_cells, Settings::MULTISCALE_CELLS_PER_PHOTON),
+            format!(
+                "multiscale grids ({cells} cells: --grid-cells {}, at most {} a stored photon)",
+                settings.grid_cells,
+                Settings::MULTISCALE_CELLS_PER_PHOTON
+            ),
             (cells as u64).saturating_mul(BYTES_PER_MULTISCALE_CELL),
             "lower --grid-cells",
         );

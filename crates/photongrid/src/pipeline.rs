@@ -1043,7 +1043,11 @@ fn irradiance_cache(
             .filter(|(p, &t)| settings.gathered(p.depth()) && g.texture_facing(t, p.normal()).is_none())
             .map(|(p, _)| *p)
             .collect(),
-        None => photons.iter().filter(|p| settings.gathered(p.depth())).copied().collect(),
+        None => photons
+            .iter()
+            .filter(|p| settings.gathered(p.depth()))
+            .copied()
+            .collect(),
     };
     let all = PhotonMap::build(gathered, settings.gather_neighbours, scene.surface_area(), max_radius);
     IrradianceCache::build(

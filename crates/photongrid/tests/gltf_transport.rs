@@ -276,12 +276,28 @@ fn alpha_cut_outs_and_blending_for_shadow_rays_and_photons() {
         direct,
         ..Settings::default()
     };
-    for m in [photongrid::settings::Method::Knn, photongrid::settings::Method::Multiscale] {
+    for m in [
+        photongrid::settings::Method::Knn,
+        photongrid::settings::Method::Multiscale,
+    ] {
         let dir = TempDir::new("alpha");
         let path = plane_scene(&dir, floor.clone(), Some(blocker(0.7, ("MASK", Some(0.5)))));
-        let (_, film) = render(&path, &Settings { method: m, ..open(DirectLighting::Photons) });
+        let (_, film) = render(
+            &path,
+            &Settings {
+                method: m,
+                ..open(DirectLighting::Photons)
+            },
+        );
         eprintln!("EXP {m:?}");
-        for py in 0..H { let mut line = String::new(); for px in 0..W { let v = lum(film.color[(py * W + px) as usize]); line.push_str(&format!("{:2.0} ", (v * 1000.0).min(99.0))); } eprintln!("EXP {line}"); }
+        for py in 0..H {
+            let mut line = String::new();
+            for px in 0..W {
+                let v = lum(film.color[(py * W + px) as usize]);
+                line.push_str(&format!("{:2.0} ", (v * 1000.0).min(99.0)));
+            }
+            eprintln!("EXP {line}");
+        }
     }
     for direct in [DirectLighting::ShadowRays, DirectLighting::Photons] {
         let tol = if direct == DirectLighting::Photons { 0.1 } else { 0.03 };

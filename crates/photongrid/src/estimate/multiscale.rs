@@ -13,10 +13,12 @@
 
 use super::photon_map::Gather;
 use super::Query;
-use crate::grid::multiscale::{LayerTexture, MultiscaleGrids, Resolved, ScaleEstimate, Texel, CAUSTIC, DIRECT, INDIRECT};
-use rayon::prelude::*;
+use crate::grid::multiscale::{
+    LayerTexture, MultiscaleGrids, Resolved, ScaleEstimate, Texel, CAUSTIC, DIRECT, INDIRECT,
+};
 use crate::Rgb;
 use glam::Vec3;
+use rayon::prelude::*;
 use std::f32::consts::PI;
 
 /// Luminance, the scalar the intervals are tested on.
@@ -270,7 +272,10 @@ impl MultiscaleGrids {
                 t.resolved = Some(r);
             }
         }
-        tracing::debug!(seconds = started.elapsed().as_secs_f64(), "multiscale estimate resolved for gathering");
+        tracing::debug!(
+            seconds = started.elapsed().as_secs_f64(),
+            "multiscale estimate resolved for gathering"
+        );
     }
 }
 
@@ -361,33 +366,32 @@ mod tests {
         assert!((e.irradiance.x - 1.0).abs() < 1e-6);
     }
 
-    /// A field rising linearly with x, sampled by photons on a 2 m square: at the square's
-    /// corners and edges (one-sided kernels) the local-linear fit reads the level at the
-    /// point, not the kernel's mean, which lies towards the square's inside.
-    #[test]
-    fn a_gradient_at_the_plane_edge_is_read_at_the_point() {
-        use crate::grid::multiscale::{MultiscaleParams, Probes};
+    use crate::grid::multiscale::{MultiscaleParams, Probes};
+    use crate::photon::{Photon, PhotonKind};
+    use crate::sampling::Rng;
+
+    fn p(x: f32, z: f32) -> Vec3 {
+        Vec3::new(x, 0.0, z)
+    }
+
+    /// Multiscale grids of the 2 m square [0, 2]² at y = 0 (two triangles, no probes' limits,
+    /// kernels up to 0.5 m) holding the photons `photon(rng)` gives until it has `n` (None:
+    /// the draw is rejected).
+    fn square_grids(n: usize, seed: u64, mut photon: impl FnMut(&mut Rng) -> Option<Photon>) -> MultiscaleGrids {
         use crate::grid::planes::{detect_planes, PlaneParams};
-        use crate::photon::{Photon, PhotonKind};
-        use crate::sampling::Rng;
-        let p = |x: f32, z: f32| Vec3::new(x, 0.0, z);
         let tris = vec![
             [p(0.0, 0.0), p(0.0, 2.0), p(2.0, 2.0)],
             [p(0.0, 0.0), p(2.0, 2.0), p(2.0, 0.0)],
         ];
         let set = detect_planes(&tris, &PlaneParams::default());
-        let mut rng = Rng::keyed(5, 2, 7);
-        // Irradiance 1 + x W/m²: 8 W over the square.
-        let n = 400_000;
-        let power = Rgb::splat(8.0 / n as f32);
+        let mut rng = Rng::keyed(seed, 2, 7);
         let (mut photons, mut tri) = (Vec::new(), Vec::new());
         while photons.len() < n {
-            let (x, z) = (rng.uniform() * 2.0, rng.uniform() * 2.0);
-            if rng.uniform() * 3.0 > 1.0 + x {
-                continue;
+            if let Some(ph) = photon(&mut rng) {
+                let q = ph.pos();
+                tri.push(if q.z > q.x { 0 } else { 1 });
+                photons.push(ph);
             }
-            photons.push(Photon::new(p(x, z), power, Vec3::Y, Vec3::Y, PhotonKind::Direct));
-            tri.push(if z > x { 0 } else { 1 });
         }
         let probes = Probes {
             buried: &|_, _| false,
@@ -397,7 +401,21 @@ mod tests {
             max_radius: 0.5,
             ..MultiscaleParams::default()
         };
-        let g = MultiscaleGrids::build(set, &tris, &photons, &tri, &params, &probes);
+        MultiscaleGrids::build(set, &tris, &photons, &tri, &params, &probes)
+    }
+
+    /// A field rising linearly with x, sampled by photons on a 2 m square: at the square's
+    /// corners and edges (one-sided kernels) the local-linear fit reads the level at the
+    /// point, not the kernel's mean, which lies towards the square's inside.
+    #[test]
+    fn a_gradient_at_the_plane_edge_is_read_at_the_point() {
+        // Irradiance 1 + x W/m²: 8 W over the square.
+        let n = 400_000;
+        let power = Rgb::splat(8.0 / n as f32);
+        let g = square_grids(n, 5, |rng| {
+            let (x, z) = (rng.uniform() * 2.0, rng.uniform() * 2.0);
+            (rng.uniform() * 3.0 <= 1.0 + x).then(|| Photon::new(p(x, z), power, Vec3::Y, Vec3::Y, PhotonKind::Direct))
+        });
         let gammas = Gammas {
             global: 2.0,
             caustic: 2.0,
@@ -426,38 +444,24 @@ mod tests {
     /// final-gather rays reading the resolved texture see what the point estimate says.
     #[test]
     fn a_plane_keeps_its_lit_side_and_gather_rays_read_its_estimate() {
-        use crate::grid::multiscale::{MultiscaleParams, Probes};
-        use crate::grid::planes::{detect_planes, PlaneParams};
-        use crate::photon::{Photon, PhotonKind};
-        use crate::sampling::Rng;
-        let p = |x: f32, z: f32| Vec3::new(x, 0.0, z);
-        let tris = vec![
-            [p(0.0, 0.0), p(0.0, 2.0), p(2.0, 2.0)],
-            [p(0.0, 0.0), p(2.0, 2.0), p(2.0, 0.0)],
-        ];
-        let set = detect_planes(&tris, &PlaneParams::default());
-        let mut rng = Rng::keyed(9, 4, 1);
         let (n_top, n_under) = (300_000, 100_000);
-        let (mut photons, mut tri) = (Vec::new(), Vec::new());
-        for i in 0..n_top + n_under {
+        let mut i = 0;
+        let mut g = square_grids(n_top + n_under, 9, |rng| {
             let (x, z) = (rng.uniform() * 2.0, rng.uniform() * 2.0);
             let (normal, power) = if i < n_top {
                 (Vec3::Y, 4.0 / n_top as f32)
             } else {
                 (-Vec3::Y, 12.0 / n_under as f32)
             };
-            photons.push(Photon::new(p(x, z), Rgb::splat(power), normal, normal, PhotonKind::Direct));
-            tri.push(if z > x { 0 } else { 1 });
-        }
-        let probes = Probes {
-            buried: &|_, _| false,
-            clearance: &|_, _| f32::INFINITY,
-        };
-        let params = MultiscaleParams {
-            max_radius: 0.5,
-            ..MultiscaleParams::default()
-        };
-        let mut g = MultiscaleGrids::build(set, &tris, &photons, &tri, &params, &probes);
+            i += 1;
+            Some(Photon::new(
+                p(x, z),
+                Rgb::splat(power),
+                normal,
+                normal,
+                PhotonKind::Direct,
+            ))
+        });
         let gamma = Gammas {
             global: 2.0,
             caustic: 1.25,
@@ -468,7 +472,11 @@ mod tests {
             assert!((at_point - 1.0).abs() < 0.05, "{q}: {at_point} W/m² on top");
         }
         // Reports say which side the plane's textures hold, and what gathering reads.
-        assert!(g.describe()[0].contains("lit side facing (0.00, 1.00, 0.00)"), "{:?}", g.describe());
+        assert!(
+            g.describe()[0].contains("lit side facing (0.00, 1.00, 0.00)"),
+            "{:?}",
+            g.describe()
+        );
         assert!(!g.describe()[0].contains("gathering reads"));
         g.resolve_for_gathering(gamma);
         assert!(g.describe()[0].contains("gathering reads"), "{:?}", g.describe());
@@ -477,5 +485,4 @@ mod tests {
             assert!((read - 1.0).abs() < 0.05, "{q}: {read} W/m² read by a gather ray");
         }
     }
-
 }

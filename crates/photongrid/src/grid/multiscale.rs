@@ -285,7 +285,10 @@ impl LayerTexture {
         }
         let side = (1u32 << level) as f32;
         let (x, y) = ((i % lv.w) as f32 + 0.5, (i / lv.w) as f32 + 0.5);
-        Some((x * side + t.area_moment[0] / t.area, y * side + t.area_moment[1] / t.area))
+        Some((
+            x * side + t.area_moment[0] / t.area,
+            y * side + t.area_moment[1] / t.area,
+        ))
     }
 
     /// Kernel sums at `p` on every level, finest first.
@@ -415,7 +418,8 @@ fn set_clearance(plane: &Plane, cells: &mut [Texel], clearance: &(dyn Fn(Vec3, V
     let (bw, bh) = (w.div_ceil(CLEARANCE_BLOCK), h.div_ceil(CLEARANCE_BLOCK));
     let cells_of = |b: usize| {
         let (bx, by) = (b % bw * CLEARANCE_BLOCK, b / bw * CLEARANCE_BLOCK);
-        (by..(by + CLEARANCE_BLOCK).min(h)).flat_map(move |y| (bx..(bx + CLEARANCE_BLOCK).min(w)).map(move |x| y * w + x))
+        (by..(by + CLEARANCE_BLOCK).min(h))
+            .flat_map(move |y| (bx..(bx + CLEARANCE_BLOCK).min(w)).map(move |x| y * w + x))
     };
     let probed: Vec<f32> = (0..bw * bh)
         .into_par_iter()
@@ -451,7 +455,11 @@ fn orient_to_the_light(set: &mut PlaneSet, photons: &[Photon], triangles: &[u32]
     for (p, &t) in photons.iter().zip(triangles) {
         let plane = set.plane_of_triangle.get(t as usize).copied().unwrap_or(NO_PLANE);
         if plane != NO_PLANE {
-            side[plane as usize] += if p.normal().dot(set.planes[plane as usize].normal) >= 0.0 { 1 } else { -1 };
+            side[plane as usize] += if p.normal().dot(set.planes[plane as usize].normal) >= 0.0 {
+                1
+            } else {
+                -1
+            };
         }
     }
     for (plane, s) in set.planes.iter_mut().zip(side) {
@@ -534,7 +542,11 @@ impl MultiscaleGrids {
             .collect();
         tracing::debug!(
             seconds = started.elapsed().as_secs_f64(),
-            cells = textures.iter().flatten().map(|t| t.levels[0].texels.len()).sum::<usize>(),
+            cells = textures
+                .iter()
+                .flatten()
+                .map(|t| t.levels[0].texels.len())
+                .sum::<usize>(),
             "multiscale textures sized, covered and probed"
         );
         let mut g = MultiscaleGrids {

@@ -346,7 +346,11 @@ impl Tracer<'_> {
 
     /// Precomputed irradiance at a surface a gather ray reached (grids, else the cache).
     fn gathered_irradiance(&mut self, sp: &SurfacePoint) -> Rgb {
-        match self.photons.estimator.grid_irradiance(sp.triangle, sp.position, sp.facing_normal) {
+        match self
+            .photons
+            .estimator
+            .grid_irradiance(sp.triangle, sp.position, sp.facing_normal)
+        {
             Some(e) => e,
             None => match self.photons.irradiance {
                 Some(cache) => cache.lookup(sp.position, sp.facing_normal, &mut self.knn),
