@@ -10,7 +10,7 @@
 //!   with `--method sppm` 20 bytes per camera *sample* (radius, count, flux of each of the
 //!   `spp` samples of each pixel, kept across passes) plus 96 a pixel;
 //! - while one camera renders and is written: its pass film and the encoded image (72 bytes
-//!   a pixel), and each worker thread's sample strata (4 bytes × `spp`);
+//!   a pixel);
 //! - one pass's photons: stored photons per emitted path from the scene's mean albedo
 //!   (1 + ρ + ρ² + … up to `Settings::photon_hits()` bounces), about 48 bytes each while traced and
 //!   indexed, 44 more when final gathering indexes all of them again;
@@ -32,8 +32,6 @@ const BYTES_PER_PIXEL: u64 = 96;
 const TRANSIENT_BYTES_PER_PIXEL: u64 = 72;
 /// Bytes per camera sample kept by SPPM (`SppmPixel`: r², N, τ).
 const SPPM_BYTES_PER_SAMPLE: u64 = 20;
-/// Bytes per sample of a pixel's strata, per worker thread.
-const STRATA_BYTES_PER_SAMPLE: u64 = 4;
 /// Bytes per stored photon while a pass traces and indexes it (photon 24, held once: the index
 /// sorts it in place; its triangle 4; the sort's input index 4; cell offsets up to 16).
 const BYTES_PER_PHOTON: u64 = 48;
@@ -237,7 +235,7 @@ impl Items {
     }
 }
 
-/// The cameras' images, the pass being rendered and written, the sample strata.
+/// The cameras' images and the pass being rendered and written.
 fn image_items(items: &mut Items, cameras: &[&Camera], settings: &Settings) {
     let needs = settings.method.needs();
     let spp = settings.spp.max(1) as u64;
@@ -279,12 +277,6 @@ fn image_items(items: &mut Items, cameras: &[&Camera], settings: &Settings) {
         ),
         largest.0.saturating_mul(TRANSIENT_BYTES_PER_PIXEL),
         "lower the resolution (--width, --height)",
-    );
-    let threads = rayon::current_num_threads().max(1) as u64;
-    items.add(
-        format!("camera-sample strata (--spp {spp} × {threads} threads × {STRATA_BYTES_PER_SAMPLE} bytes)"),
-        spp.saturating_mul(threads).saturating_mul(STRATA_BYTES_PER_SAMPLE),
-        "lower --spp (add passes with --passes instead)",
     );
 }
 

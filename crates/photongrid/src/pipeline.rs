@@ -1095,6 +1095,8 @@ fn render_settings(camera: &Camera, settings: &Settings, pass: u32) -> RenderSet
         max_specular_depth: settings.max_specular_depth,
         split_depth: settings.split_depth,
         seed: pass_seed(settings.seed, pass),
+        sequence_seed: settings.seed,
+        first_sample: 0,
         gather: settings.effective_gather(),
     }
 }
@@ -1121,7 +1123,10 @@ fn render_pass(
     progress: &Progress<'_>,
 ) -> (f64, u32) {
     let PassJob { pass, cut, weight } = job;
-    let rs = render_settings(camera, settings, pass);
+    let rs = RenderSettings {
+        first_sample: acc.samples(),
+        ..render_settings(camera, settings, pass)
+    };
     progress.camera(&camera.name);
     let phase = progress.phase("render", rs.height as u64 * rs.spp.max(1) as u64);
     let added = {

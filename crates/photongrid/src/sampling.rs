@@ -59,7 +59,8 @@ impl Rng {
 }
 
 /// The seed of progressive pass `pass` (0-based): pass 0 keeps `seed`, so a one-pass render is
-/// the plain render; later passes get unrelated streams for photons, strata and camera samples.
+/// the plain render; later passes get unrelated streams for photons and camera paths (the pixels' sample
+/// positions continue one sequence across passes: [`pixel_sample`]).
 pub fn pass_seed(seed: u64, pass: u32) -> u64 {
     if pass == 0 {
         seed
@@ -76,34 +77,48 @@ pub mod stream {
     pub const CAMERA: u64 = 2;
     /// Photon paths of the caustic pass.
     pub const CAUSTIC_PHOTONS: u64 = 4;
-    /// Per-pixel stratification.
+    /// Per-pixel scrambling of the camera samples' positions.
     pub const PIXEL: u64 = 3;
+    /// Per-pixel scrambling of the emission-only rays at emitter edges.
+    pub const EDGE_RAYS: u64 = 5;
 }
 
-/// N-rooks (Latin hypercube) strata for `n` samples of a pixel: sample `s` lies in column
-/// `s` and row `perm[s]` of an n×n grid, so edges are anti-aliased far better than by `n`
-/// independent jitters, for any `n`.
-pub struct NRooks {
-    perm: Vec<u32>,
+/// Position in [0,1)² of sample `index` of a pixel: the first two dimensions of the Sobol
+/// sequence, Owen-scrambled by the pixel's `seed` (Burley 2020, "Practical Hash-based Owen
+/// Scrambling"). Every power-of-two run of samples starting at 0 is a (0, m, 2)-net, so a pixel's
+/// samples stay stratified across progressive passes (pass `p` continues at the index where
+/// pass `p − 1` stopped) and an edge in any direction is anti-aliased far better than by
+/// independent jitters.
+pub fn pixel_sample(index: u32, seed: u64) -> Vec2 {
+    let x = owen_scramble(index.reverse_bits(), seed as u32);
+    let y = owen_scramble(sobol_second_dimension(index), (seed >> 32) as u32);
+    let unit = |v: u32| (v >> 8) as f32 * (1.0 / 16_777_216.0);
+    Vec2::new(unit(x), unit(y))
 }
 
-/// Strata for `n` samples, shuffled by `rng`.
-pub fn n_rooks(n: usize, rng: &mut Rng) -> NRooks {
-    let mut perm: Vec<u32> = (0..n as u32).collect();
-    for i in (1..n).rev() {
-        let j = (rng.next_u32() as usize) % (i + 1);
-        perm.swap(i, j);
+/// The Sobol sequence's second dimension (primitive polynomial x + 1: direction numbers
+/// v₀ = 2³¹, vᵢ = vᵢ₋₁ ⊕ vᵢ₋₁ >> 1).
+fn sobol_second_dimension(mut index: u32) -> u32 {
+    let (mut v, mut x) = (1u32 << 31, 0u32);
+    while index != 0 {
+        if index & 1 == 1 {
+            x ^= v;
+        }
+        index >>= 1;
+        v ^= v >> 1;
     }
-    NRooks { perm }
+    x
 }
 
-impl NRooks {
-    /// Position in [0,1)² of sample `s` given a uniform jitter `u`.
-    pub fn jitter(&self, s: usize, u: Vec2) -> Vec2 {
-        let n = self.perm.len().max(1) as f32;
-        let row = self.perm.get(s).copied().unwrap_or(0) as f32;
-        Vec2::new((s as f32 + u.x) / n, (row + u.y) / n)
+/// Nested uniform (Owen) scrambling of the bits of `x`: each bit is flipped by a hash of `seed`
+/// and the bits above it (the Laine–Karras permutation on the reversed bits, with Burley's
+/// constants).
+fn owen_scramble(x: u32, seed: u32) -> u32 {
+    let mut v = x.reverse_bits().wrapping_add(seed);
+    for k in [0x6c50_b47c_u32, 0xb82f_1e52, 0xc7af_e638, 0x8d22_f6e6] {
+        v ^= v.wrapping_mul(k);
     }
+    v.reverse_bits()
 }
 
 /// An orthonormal basis (t, b, n) around a unit normal (Duff et al. 2017).
@@ -277,18 +292,49 @@ mod tests {
         assert!((m - 2.0 / 3.0).abs() < 0.003, "{m}");
     }
 
+    /// Indices of the cells of an `nx`×`ny` grid holding samples `from..to` of one pixel.
+    fn cells(from: u32, to: u32, seed: u64, nx: u32, ny: u32) -> Vec<u32> {
+        let mut c: Vec<u32> = (from..to)
+            .map(|i| {
+                let p = pixel_sample(i, seed);
+                (p.y * ny as f32) as u32 * nx + (p.x * nx as f32) as u32
+            })
+            .collect();
+        c.sort();
+        c
+    }
+
     #[test]
-    fn n_rooks_covers_each_row_and_column_once() {
-        let mut r = Rng::keyed(1, 1, 1);
-        let s = n_rooks(7, &mut r);
-        let mut rows: Vec<usize> = (0..7)
-            .map(|i| (s.jitter(i, Vec2::splat(0.5)).y * 7.0) as usize)
-            .collect();
-        let cols: Vec<usize> = (0..7)
-            .map(|i| (s.jitter(i, Vec2::splat(0.5)).x * 7.0) as usize)
-            .collect();
-        rows.sort();
-        assert_eq!(rows, (0..7).collect::<Vec<_>>());
-        assert_eq!(cols, (0..7).collect::<Vec<_>>());
+    fn pixel_samples_are_a_net_in_every_power_of_two_prefix() {
+        for seed in [0, 1, 0xdead_beef_1234_5678] {
+            for m in 0..=8u32 {
+                let n = 1u32 << m;
+                // Every elementary interval of area 1/n (2^a columns × 2^(m−a) rows) holds one.
+                for a in 0..=m {
+                    let (nx, ny) = (1 << a, 1 << (m - a));
+                    assert_eq!(cells(0, n, seed, nx, ny), (0..n).collect::<Vec<_>>(), "seed {seed} m {m} a {a}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn consecutive_passes_of_four_samples_fill_the_strata_of_their_union() {
+        // Pass 1 takes samples 0..4 and pass 2 samples 4..8: together they are one 8-point net,
+        // which independent per-pass strata would not be.
+        let union = [cells(0, 4, 7, 8, 1), cells(4, 8, 7, 8, 1)].concat();
+        let mut union = union;
+        union.sort();
+        assert_eq!(union, (0..8).collect::<Vec<_>>());
+    }
+
+    #[test]
+    fn pixel_samples_differ_between_pixels_and_stay_in_the_unit_square() {
+        let a: Vec<Vec2> = (0..64).map(|i| pixel_sample(i, 1)).collect();
+        let b: Vec<Vec2> = (0..64).map(|i| pixel_sample(i, 2)).collect();
+        assert_ne!(a, b);
+        assert!(a.iter().chain(&b).all(|p| (0.0..1.0).contains(&p.x) && (0.0..1.0).contains(&p.y)));
+        let mean = a.iter().copied().sum::<Vec2>() / 64.0;
+        assert!((mean - Vec2::splat(0.5)).abs().max_element() < 0.02, "{mean}");
     }
 }

@@ -312,6 +312,11 @@ impl SettingsError {
 /// Largest image, in pixels (a film of 2^28 pixels takes several GiB).
 pub const MAX_PIXELS: u64 = 1 << 28;
 
+/// Most camera samples per pixel in one pass: beyond this a single pass would run for days on
+/// an ordinary image, while passes (`--passes`, `--time`) add samples with a result to look
+/// at after each.
+pub const MAX_SPP: u32 = 1 << 16;
+
 impl Settings {
     /// Check values that would make a render meaningless or impossible, with what to do.
     pub fn validate(&self) -> Result<(), SettingsError> {
@@ -324,6 +329,15 @@ impl Settings {
         }
         if self.spp == 0 {
             return Err(e("spp", "must be at least 1"));
+        }
+        if self.spp > MAX_SPP {
+            return Err(e(
+                "spp",
+                &format!(
+                    "{} is more than {MAX_SPP} samples per pixel in one pass: lower it, and add passes (passes) or a time budget (time) instead",
+                    self.spp
+                ),
+            ));
         }
         if self.width == Some(0) {
             return Err(e("width", "must be at least 1"));

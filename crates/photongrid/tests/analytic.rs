@@ -315,6 +315,50 @@ fn emissive_quad_seen_directly() {
     }
 }
 
+#[test]
+fn emitter_edges_are_anti_aliased_to_their_coverage() {
+    // An emissive square of half-size 0.77 m seen from above: the pixels it partly covers
+    // (1/16 m each, its edges not on pixel boundaries) must show emission × covered share. With
+    // 4 samples a pixel alone, a covered share comes out in steps of 1/4; the emission-only
+    // rays at emitter edges bring it within 4 %.
+    let half = 0.77;
+    let view = harness::TopView {
+        cx: 0.0,
+        cz: 0.0,
+        ymag: 1.5,
+        height: 10.0,
+        w: W,
+        h: H,
+    };
+    let dir = TempDir::new("emitter-edges");
+    let mut g = Gltf::new();
+    let m = g.material(Material::emitter([1.0, 1.0, 1.0], Some(8.0)));
+    let mesh = g.mesh(vec![floor_quad(half as f32, 0.0).material(m)]);
+    g.root(Node {
+        mesh: Some(mesh),
+        ..Default::default()
+    });
+    view.add_camera(&mut g);
+    let path = g.write_glb(dir.path(), "square.glb");
+    let (_, film) = render(&path, &direct_settings(4));
+    let overlap = |a: f64, b: f64| (b.min(half) - a.max(-half)).max(0.0);
+    let (mut edge_pixels, mut worst) = (0, 0.0f64);
+    for py in 0..H {
+        for px in 0..W {
+            let (x0, z0) = view.film_to_world(px as f64, py as f64);
+            let (x1, z1) = view.film_to_world(px as f64 + 1.0, py as f64 + 1.0);
+            let share = overlap(x0.min(x1), x0.max(x1)) * overlap(z0.min(z1), z0.max(z1)) / view.pixel_size().powi(2);
+            let got = film.color[(py * W + px) as usize].y as f64 / 8.0;
+            if share > 0.0 && share < 1.0 {
+                edge_pixels += 1;
+            }
+            worst = worst.max((got - share).abs());
+        }
+    }
+    assert!(edge_pixels > 80, "{edge_pixels} edge pixels");
+    assert!(worst < 0.04, "worst pixel off by {worst:.3} of the emission");
+}
+
 /// Load a file holding only a floor and one light.
 fn load_with_light(tag: &str, light: Light, rotation: [f32; 4]) -> Scene {
     let dir = TempDir::new(tag);

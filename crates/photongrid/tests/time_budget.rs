@@ -103,6 +103,8 @@ fn a_camera_pass_past_its_deadline_keeps_its_required_sweeps_only() {
         max_specular_depth: settings.max_specular_depth,
         split_depth: settings.split_depth,
         seed: 1,
+        sequence_seed: 1,
+        first_sample: 0,
         gather: 2,
     };
     let camera = &scene.cameras[0];
@@ -116,14 +118,14 @@ fn a_camera_pass_past_its_deadline_keeps_its_required_sweeps_only() {
     };
     let cut = |deadline, required| Cut { deadline, required };
     assert!(
-        render_until(pass, &|_| {}, cut(past, 0)).is_none(),
+        render_until(pass, &|_| {}, cut(past, 0), None).is_none(),
         "nothing required: dropped"
     );
-    let first = render_until(pass, &|_| {}, cut(past, 1)).expect("the first sweep is required");
+    let first = render_until(pass, &|_| {}, cut(past, 1), None).expect("the first sweep is required");
     assert_eq!(first.samples, 1);
     assert!(first.film.mean()[1] > 0.0);
     let later = Some(Instant::now() + Duration::from_secs(3600));
-    let whole = render_until(pass, &|_| {}, cut(later, 1)).expect("in time");
+    let whole = render_until(pass, &|_| {}, cut(later, 1), None).expect("in time");
     assert_eq!(whole.samples, 3);
     // Sweeps add up to the same image as a pass without a deadline, and one sweep differs.
     let plain = render(pass, &|_| {});

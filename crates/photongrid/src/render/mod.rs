@@ -12,12 +12,14 @@ use crate::settings::DirectLighting;
 use crate::spatial::KnnBuffer;
 use crate::surface::SurfacePoint;
 use crate::Rgb;
+use emitter_edges::EmitterEdges;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 pub mod budget;
+pub mod emitter_edges;
 mod gltf;
 pub mod progressive;
 pub mod sppm;
@@ -41,6 +43,12 @@ pub struct RenderSettings {
     pub split_depth: u32,
     /// Random seed (of this pass: [`crate::sampling::pass_seed`]).
     pub seed: u64,
+    /// The render's seed, the same in every pass: it scrambles each pixel's sequence of
+    /// sample positions ([`sampling::pixel_sample`]).
+    pub sequence_seed: u64,
+    /// Index of this pass's first sample in each pixel's sequence (the samples per pixel the
+    /// earlier passes took), so that the passes together stay stratified.
+    pub first_sample: u32,
     /// Final-gather rays per camera sample (0: none).
     pub gather: u32,
 }
@@ -57,6 +65,8 @@ struct Tracer<'a> {
     knn: KnnBuffer,
     /// Set for the ray a glTF lobe sampled (`gltf.rs`): weights the emission it finds.
     mis: Option<gltf::MisRay>,
+    /// The camera ray's own emission is estimated apart ([`emitter_edges`]): leave it out.
+    skip_seen_emission: bool,
 }
 
 impl<'a> Tracer<'a> {
@@ -68,6 +78,7 @@ impl<'a> Tracer<'a> {
             settings: pass.settings,
             knn: KnnBuffer::default(),
             mis: None,
+            skip_seen_emission: false,
         }
     }
 }
@@ -104,7 +115,7 @@ pub fn render(pass: CameraPass<'_>, progress: &(dyn Fn(usize) + Sync)) -> Film {
         deadline: None,
         required: 0,
     };
-    render_until(pass, progress, all)
+    render_until(pass, progress, all, None)
         .expect("a render without a deadline completes")
         .film
 }
@@ -130,15 +141,21 @@ pub struct Swept {
 
 /// [`render`], cut at `cut.deadline`: a sweep still running then is dropped and the film holds
 /// the sweeps before it (`None` if there are none), so a pass that overruns a time budget ends
-/// at the deadline having lost at most one sample per pixel of work.
-pub fn render_until(pass: CameraPass<'_>, progress: &(dyn Fn(usize) + Sync), cut: Cut) -> Option<Swept> {
+/// at the deadline having lost at most one sample per pixel of work. At `edges`, the emission
+/// the camera rays see is estimated by [`emitter_edges::edge_emission`].
+pub fn render_until(
+    pass: CameraPass<'_>,
+    progress: &(dyn Fn(usize) + Sync),
+    cut: Cut,
+    edges: Option<&EmitterEdges>,
+) -> Option<Swept> {
     let (w, h) = (pass.settings.width, pass.settings.height);
     let mut film = Film::new(w, h);
     let mut sweep = vec![Rgb::ZERO; w as usize * h as usize];
     let mut samples = 0;
     for s in 0..pass.settings.spp.max(1) {
         let deadline = cut.deadline.filter(|_| s >= cut.required);
-        if !render_sweep(pass, progress, deadline, s, &mut sweep, &mut film.aov) {
+        if !render_sweep(pass, progress, (deadline, edges), s, &mut sweep, &mut film.aov) {
             break;
         }
         for (c, v) in film.color.iter_mut().zip(&sweep) {
@@ -160,7 +177,7 @@ pub fn render_until(pass: CameraPass<'_>, progress: &(dyn Fn(usize) + Sync), cut
 fn render_sweep(
     pass: CameraPass<'_>,
     progress: &(dyn Fn(usize) + Sync),
-    deadline: Option<Instant>,
+    (deadline, edges): (Option<Instant>, Option<&EmitterEdges>),
     s: u32,
     sweep: &mut [Rgb],
     aov: &mut [Aov],
@@ -180,10 +197,14 @@ fn render_sweep(
                     return;
                 }
                 for x in 0..w {
-                    let strata = pixel_strata(settings, (y * w + x) as u64);
-                    let (o, d, mut rng) = camera_ray(camera, settings, &strata, x, y, s);
+                    let (o, d, mut rng) = camera_ray(camera, settings, x, y, s);
                     let mut first = (s == 0).then_some(&mut aovs[x]);
+                    let edge = edges.is_some_and(|e| e.contains(x, y));
+                    tracer.skip_seen_emission = edge;
                     row[x] = tracer.radiance(o, d, 0, &mut rng, &mut first);
+                    if edge {
+                        row[x] += emitter_edges::edge_emission(&pass, x, y, settings.first_sample + s);
+                    }
                     if s == 0 {
                         aovs[x].depth *= d.dot(camera.forward()); // along the axis, see Aov
                     }
@@ -192,6 +213,17 @@ fn render_sweep(
             },
         );
     !late.into_inner()
+}
+
+/// The emission leaving `sp` towards the ray that found it (its emissive texture; zero on the
+/// back of a one-sided emitter).
+pub(crate) fn seen_emission(scene: &Scene, sp: &SurfacePoint) -> Rgb {
+    let material = &scene.materials[sp.material as usize];
+    if material.is_emissive() && (material.double_sided || !sp.backface) {
+        material.emission_at(&scene.textures, sp.uv)
+    } else {
+        Rgb::ZERO
+    }
 }
 
 /// The photon-estimate query at a surface point.
@@ -204,29 +236,16 @@ fn query_at(sp: &SurfacePoint) -> Query {
     }
 }
 
-/// The N-rooks strata of a pixel's `spp` samples.
-fn pixel_strata(settings: &RenderSettings, pixel: u64) -> sampling::NRooks {
-    sampling::n_rooks(
-        settings.spp.max(1) as usize,
-        &mut Rng::keyed(settings.seed, stream::PIXEL, pixel),
-    )
-}
-
-/// The jittered ray of sample `s` of pixel (x, y), and the random stream the rest of its path
-/// uses (keyed by pixel and sample: independent of threads).
-fn camera_ray(
-    camera: &Camera,
-    settings: &RenderSettings,
-    strata: &sampling::NRooks,
-    x: usize,
-    y: usize,
-    s: u32,
-) -> (Vec3, Vec3, Rng) {
+/// The ray of sample `s` of this pass at pixel (x, y), and the random stream the rest of its
+/// path uses (keyed by pixel and sample: independent of threads).
+fn camera_ray(camera: &Camera, settings: &RenderSettings, x: usize, y: usize, s: u32) -> (Vec3, Vec3, Rng) {
     let (w, h) = (settings.width, settings.height);
     let spp = settings.spp.max(1) as u64;
     let pixel = (y * w as usize + x) as u64;
-    let mut rng = Rng::keyed(settings.seed, stream::CAMERA, pixel * spp + s as u64);
-    let film_pos = Vec2::new(x as f32, y as f32) + strata.jitter(s as usize, rng.uniform2());
+    let rng = Rng::keyed(settings.seed, stream::CAMERA, pixel * spp + s as u64);
+    let scramble = sampling::mix64(settings.sequence_seed ^ sampling::mix64(stream::PIXEL ^ pixel << 8));
+    let index = settings.first_sample.wrapping_add(s);
+    let film_pos = Vec2::new(x as f32, y as f32) + sampling::pixel_sample(index, scramble);
     let (o, d) = camera.generate_ray(film_pos, w, h);
     (o, d, rng)
 }
@@ -243,9 +262,8 @@ impl Tracer<'_> {
             first_hit_aov(aov, &sp, hit.t);
         }
         let mut l = Rgb::ZERO;
-        if material.is_emissive() && (material.double_sided || !sp.backface) {
-            // The emissive texture as the camera sees it.
-            l += material.emission_at(&self.scene.textures, sp.uv) * self.emission_weight(mis, &sp, &hit, d);
+        if !(depth == 0 && self.skip_seen_emission) {
+            l += seen_emission(self.scene, &sp) * self.emission_weight(mis, &sp, &hit, d);
         }
         if let Surface::Lambert { .. } = material.surface {
             return l + self.diffuse(&sp, rng, aov);

@@ -2,6 +2,7 @@
 //! and new camera samples, and the [`Budget`] says when to stop. The loop itself, which traces
 //! each pass's photons, is [`crate::pipeline::render`].
 
+use super::emitter_edges::EmitterEdges;
 use super::sppm::SppmFilm;
 use super::{render_until, CameraPass, Cut};
 use crate::estimate::Accumulation;
@@ -25,6 +26,10 @@ pub enum Accumulator {
         passes: u32,
         /// Sum of the passes' weights.
         weight: f32,
+        /// Samples per pixel added.
+        samples: u32,
+        /// The camera's emitter edges, found at the first pass (`Some(None)`: none).
+        edges: Option<Option<EmitterEdges>>,
     },
     /// SPPM: per-sample radius, count and flux.
     Sppm(SppmFilm),
@@ -41,6 +46,8 @@ impl Accumulator {
                 size: (width, height),
                 passes: 0,
                 weight: 0.0,
+                samples: 0,
+                edges: None,
             },
         }
     }
@@ -63,9 +70,12 @@ impl Accumulator {
                 aov,
                 passes,
                 weight: total,
+                samples,
+                edges,
                 ..
             } => {
-                let Some(swept) = render_until(pass, progress, cut) else {
+                let edges = edges.get_or_insert_with(|| EmitterEdges::find(&pass));
+                let Some(swept) = render_until(pass, progress, cut, edges.as_ref()) else {
                     return 0;
                 };
                 let weight = weight * swept.samples as f32 / spp as f32;
@@ -77,6 +87,7 @@ impl Accumulator {
                     *aov = swept.film.aov;
                 }
                 *passes += 1;
+                *samples += swept.samples;
                 swept.samples
             }
         }
@@ -87,6 +98,15 @@ impl Accumulator {
         match self {
             Accumulator::Sppm(s) => s.passes(),
             Accumulator::Average { passes, .. } => *passes,
+        }
+    }
+
+    /// Samples per pixel added so far: where the next pass continues each pixel's sequence of
+    /// sample positions.
+    pub fn samples(&self) -> u32 {
+        match self {
+            Accumulator::Sppm(s) => s.passes() * s.spp(),
+            Accumulator::Average { samples, .. } => *samples,
         }
     }
 

@@ -12,7 +12,7 @@
 //! where it first meets a diffuse surface.
 
 use super::gltf::SppmStep;
-use super::{camera_ray, first_hit_aov, pixel_strata, CameraPass, Tracer};
+use super::{camera_ray, first_hit_aov, CameraPass, Tracer};
 use crate::bsdf;
 use crate::estimate::density::photon_density;
 use crate::estimate::sppm::SppmPixel;
@@ -67,6 +67,11 @@ impl SppmFilm {
         self.passes
     }
 
+    /// Camera samples per pixel and pass.
+    pub fn spp(&self) -> u32 {
+        self.spp
+    }
+
     /// Add one pass: visible points for `settings.seed`'s camera samples, gathered from this
     /// pass's photons only. `progress(rows)` is called as rows finish.
     pub fn add_pass(&mut self, pass: CameraPass<'_>, progress: &(dyn Fn(usize) + Sync)) {
@@ -85,10 +90,9 @@ impl SppmFilm {
                 || Tracer::of(pass),
                 |tracer, (y, ((samples, direct), aovs))| {
                     for x in 0..w {
-                        let strata = pixel_strata(settings, (y * w + x) as u64);
                         let mut l = Rgb::ZERO;
                         for s in 0..spp {
-                            let (o, d, mut rng) = camera_ray(camera, settings, &strata, x, y, s);
+                            let (o, d, mut rng) = camera_ray(camera, settings, x, y, s);
                             let aov = (first_pass && s == 0).then_some(&mut aovs[x]);
                             let (le, vp) = tracer.visible_point(o, d, &mut rng, aov);
                             if first_pass && s == 0 {
