@@ -556,11 +556,7 @@ fn batch_units_over_the_memory_limit_are_refused_up_front() {
     ] {
         assert!(e[1].contains(needle), "lacks {needle:?}: {}", e[1]);
     }
-    assert!(
-        e[2].contains("SPPM state") && e[2].contains("lower --spp"),
-        "{}",
-        e[2]
-    );
+    assert!(e[2].contains("SPPM state") && e[2].contains("lower --spp"), "{}", e[2]);
     let (report, journal) = (dir.join("report.json"), dir.join("journal.jsonl"));
     let args = ["batch", s(&jobs), "--report", s(&report), "--journal", s(&journal)];
     let statuses = || -> Vec<String> {

@@ -312,7 +312,11 @@ mod tests {
                 // Every elementary interval of area 1/n (2^a columns × 2^(m−a) rows) holds one.
                 for a in 0..=m {
                     let (nx, ny) = (1 << a, 1 << (m - a));
-                    assert_eq!(cells(0, n, seed, nx, ny), (0..n).collect::<Vec<_>>(), "seed {seed} m {m} a {a}");
+                    assert_eq!(
+                        cells(0, n, seed, nx, ny),
+                        (0..n).collect::<Vec<_>>(),
+                        "seed {seed} m {m} a {a}"
+                    );
                 }
             }
         }
@@ -333,7 +337,10 @@ mod tests {
         let a: Vec<Vec2> = (0..64).map(|i| pixel_sample(i, 1)).collect();
         let b: Vec<Vec2> = (0..64).map(|i| pixel_sample(i, 2)).collect();
         assert_ne!(a, b);
-        assert!(a.iter().chain(&b).all(|p| (0.0..1.0).contains(&p.x) && (0.0..1.0).contains(&p.y)));
+        assert!(a
+            .iter()
+            .chain(&b)
+            .all(|p| (0.0..1.0).contains(&p.x) && (0.0..1.0).contains(&p.y)));
         let mean = a.iter().copied().sum::<Vec2>() / 64.0;
         assert!((mean - Vec2::splat(0.5)).abs().max_element() < 0.02, "{mean}");
     }

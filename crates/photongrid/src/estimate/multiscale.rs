@@ -225,14 +225,14 @@ impl MultiscaleGrids {
         Some(
             [CAUSTIC, INDIRECT, DIRECT]
                 .iter()
-                .map(|&l| match &tex[l].resolved {
-                    Some(r) => {
-                        let (gx, gy) = tex[l].plane.grid_coords(p);
-                        r.lookup(gx, gy)
+                .map(|&l| {
+                    let (gx, gy) = tex[l].plane.grid_coords(p);
+                    match &tex[l].resolved {
+                        Some(r) if !r.on_outline(gx, gy) => r.lookup(gx, gy),
+                        _ => self
+                            .layer_estimate(tex, l, p, gamma)
+                            .map_or(Rgb::ZERO, |e| e.irradiance),
                     }
-                    None => self
-                        .layer_estimate(tex, l, p, gamma)
-                        .map_or(Rgb::ZERO, |e| e.irradiance),
                 })
                 .sum(),
         )
@@ -262,7 +262,13 @@ impl MultiscaleGrids {
                                 self.layer_estimate(tex, l, p, gamma).map(|e| e.irradiance)
                             })
                             .collect();
-                        Resolved { side, w, h, values }
+                        Resolved {
+                            side,
+                            w,
+                            h,
+                            values,
+                            outline: t.outline(level),
+                        }
                     })
                     .collect()
             })

@@ -37,7 +37,7 @@ pub struct Texel {
     pub area_moment: [f32; 2],
     /// ∫ offset ⊗ offset dA over the surface inside (xx, xy, yy).
     pub area_moment2: [f32; 3],
-    /// The least open space in front of the surface inside (m; indirect layer only): light
+    /// The least open space in front of the surface inside (m; global layers only): light
     /// changes over about this distance next to something standing on or near the plane.
     pub clearance: f32,
 }
@@ -188,9 +188,24 @@ pub struct Resolved {
     pub h: usize,
     /// Irradiance per texel (row-major); None where no kernel covers surface.
     pub values: Vec<Option<Rgb>>,
+    /// Texels on the surface's outline (partly covered, or next to a texel without surface
+    /// or the grid's border). Interpolation there holds the value of the texel's centroid up
+    /// to the edge, while light often changes fastest there (the foot of a wall gets the
+    /// floor's light): rays landing in them take the estimate at their own point.
+    pub outline: Vec<bool>,
 }
 
 impl Resolved {
+    /// Whether fine grid coordinates `(gx, gy)` fall in an outline texel.
+    pub fn on_outline(&self, gx: f32, gy: f32) -> bool {
+        if self.w == 0 || self.h == 0 {
+            return false;
+        }
+        let i = ((gx / self.side).max(0.0) as usize).min(self.w - 1);
+        let j = ((gy / self.side).max(0.0) as usize).min(self.h - 1);
+        self.outline[j * self.w + i]
+    }
+
     /// Bilinear read at fine grid coordinates `(gx, gy)`, over the texels that hold an
     /// estimate (their weights renormalised), so that light does not fade towards a
     /// plane's edge; zero where none does.
@@ -273,6 +288,30 @@ impl LayerTexture {
             }
         }
         (best, self.levels[best].w, self.levels[best].h)
+    }
+
+    /// The texels of `level` on the surface's outline (see [`Resolved::outline`]): covering
+    /// less than all their area, or next (4-neighbours) to one with no surface or to the
+    /// grid's border.
+    pub fn outline(&self, level: usize) -> Vec<bool> {
+        let lv = &self.levels[level];
+        let full = self.kernel_area(level) * (1.0 - 1e-3);
+        let covered = |x: isize, y: isize| {
+            x >= 0
+                && y >= 0
+                && (x as usize) < lv.w
+                && (y as usize) < lv.h
+                && lv.texels[y as usize * lv.w + x as usize].area > 0.0
+        };
+        (0..lv.w * lv.h)
+            .map(|i| {
+                let (x, y) = ((i % lv.w) as isize, (i / lv.w) as isize);
+                lv.texels[i].area < full
+                    || [(-1, 0), (1, 0), (0, -1), (0, 1)]
+                        .iter()
+                        .any(|&(dx, dy)| !covered(x + dx, y + dy))
+            })
+            .collect()
     }
 
     /// Where the surface within texel `i` of `level` lies: the centroid of its covered area
@@ -532,8 +571,11 @@ impl MultiscaleGrids {
                             *a = Texel::default();
                         }
                     });
-                    // Only the indirect estimate asks how far a kernel may reach.
-                    if l == INDIRECT {
+                    // Global light changes next to what stands on or near the plane (a
+                    // wall standing on a floor that runs on behind it, a box's shadow), so
+                    // its kernels stop at the open space in front; caustics choose their
+                    // scale from their own sharp structure.
+                    if l != CAUSTIC {
                         set_clearance(&plane, &mut area, probes.clearance);
                     }
                     LayerTexture::new(plane, area)

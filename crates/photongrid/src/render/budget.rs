@@ -152,7 +152,7 @@ pub const MIN_PATHS: usize = 20_000;
 pub const PLANNED_PASSES: f64 = 1.6;
 /// After the first pass, the costs it measured size the passes for the time left so that
 /// about this many fit.
-pub const REPLANNED_PASSES: f64 = 1.25;
+pub const REPLANNED_PASSES: f64 = 1.1;
 
 /// How the passes of a time-budgeted render are sized, and why.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]

@@ -49,7 +49,11 @@ impl EmitterEdges {
             })
             .collect();
         let count = flagged.iter().filter(|&&f| f).count();
-        (count > 0).then_some(EmitterEdges { width: w, flagged, count })
+        (count > 0).then_some(EmitterEdges {
+            width: w,
+            flagged,
+            count,
+        })
     }
 
     /// Whether pixel (x, y) is at an edge.
