@@ -21,6 +21,7 @@
 //! loader's default budget, `MemTotal` of `/proc/meminfo`), else 8 GiB.
 
 use crate::estimate::Accumulation;
+use crate::render::budget::CAUSTIC_BOOST;
 use crate::scene::{Camera, Scene, Surface, Triangle};
 use crate::settings::Settings;
 
@@ -283,7 +284,9 @@ fn image_items(items: &mut Items, cameras: &[&Camera], settings: &Settings) {
 /// One pass's photons; returns how many are stored.
 fn photon_items(items: &mut Items, scene: &SceneFootprint, settings: &Settings) -> u64 {
     let caustic = if scene.specular && settings.photons > 0 {
-        settings.caustic_photons as u64
+        // A time budget may ask for more where caustics carry much of the light.
+        let boost = if settings.time.is_some() { CAUSTIC_BOOST } else { 1 };
+        settings.caustic_photons.saturating_mul(boost) as u64
     } else {
         0
     };

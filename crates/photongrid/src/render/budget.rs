@@ -251,6 +251,27 @@ pub const PHOTON_FLOOR_SHARE: f64 = 1.0 / 16.0;
 /// shelf_objects 0.004): measured at equal time (docs/time_budget.md).
 pub const CAUSTICS_FIRST_SHARE: f64 = 0.1;
 
+/// Where caustics carry at least [`CAUSTICS_FIRST_SHARE`] of the stored photon power, a
+/// time-budgeted pass asks for this many times the caustic photons the settings give: a
+/// caustic's noise and sharpness depend on them alone, and they cost little beside the camera
+/// pass (measured at equal passes and per second: docs/time_budget.md).
+pub const CAUSTIC_BOOST: usize = 3;
+
+impl PassSize {
+    /// The pass a time budget asks for, given what the probe measured: [`CAUSTIC_BOOST`] times
+    /// the caustic photons where caustics carry much of the light.
+    pub fn for_budget(self, costs: &Costs) -> Self {
+        if costs.caustic_share >= CAUSTICS_FIRST_SHARE {
+            PassSize {
+                caustic_photons: self.caustic_photons.saturating_mul(CAUSTIC_BOOST),
+                ..self
+            }
+        } else {
+            self
+        }
+    }
+}
+
 /// A pass of `requested`'s shape that takes `target` seconds, giving up first what lowers the
 /// error least: photons down to [`PHOTON_FLOOR_SHARE`], then samples per pixel (down to 1),
 /// then gather rays (down to 1), then photons down to [`MIN_PATHS`]. Where caustics carry
@@ -435,6 +456,18 @@ mod tests {
             spp: 4,
             gather: 8,
         }
+    }
+
+    #[test]
+    fn a_budget_asks_for_more_caustic_photons_only_where_caustics_carry_much_light() {
+        let heavy = requested().for_budget(&costs());
+        assert_eq!(heavy.caustic_photons, CAUSTIC_BOOST * 1_000_000);
+        assert_eq!((heavy.photons, heavy.spp, heavy.gather), (2_000_000, 4, 8));
+        let light = Costs {
+            caustic_share: 0.004,
+            ..costs()
+        };
+        assert_eq!(requested().for_budget(&light), requested());
     }
 
     #[test]
