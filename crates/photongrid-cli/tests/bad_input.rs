@@ -443,4 +443,23 @@ fn readme_render_of_cornell_glass() {
     assert_eq!(s["settings"]["photons"], json!(20000));
     assert_eq!(s["cameras"][0]["width"], json!(64));
     assert_eq!(s["photons"]["emitted"], json!(20000));
+    // A point light: no emitter outline in view.
+    assert_eq!(s["cameras"][0]["emitter_edge_pixels"], json!(0));
+}
+
+#[test]
+fn stats_count_the_pixels_at_an_emitter_outline() {
+    let dir = TempDir::new("emitter-edges");
+    let (out, stats) = (dir.join("area.exr"), dir.join("stats.json"));
+    let scene = sample("cornell_area.glb");
+    let args = ["--width", "64", "--height", "48", "--photons", "20000", "--spp", "1"];
+    let mut all = vec!["render", scene.to_str().unwrap(), "-o", out.to_str().unwrap()];
+    all.extend(args);
+    all.extend(["--stats", stats.to_str().unwrap()]);
+    let r = run(&dir, &all);
+    assert!(r.ok(), "exit {:?}:\n{}", r.code, r.stderr);
+    let s: Value = serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+    // The ceiling's emissive quad seen from below: its outline, a few pixels wide.
+    let n = s["cameras"][0]["emitter_edge_pixels"].as_u64().unwrap();
+    assert!((8..400).contains(&n), "{n} pixels");
 }

@@ -168,6 +168,10 @@ pub struct CameraReport {
     pub mean_rgb: [f64; 3],
     /// Pixels that are NaN or infinite.
     pub nonfinite_pixels: usize,
+    /// Pixels at the outline of an emitter in view, whose directly seen emission took 16
+    /// emission-only rays per sample (`render::emitter_edges`).
+    #[serde(default)]
+    pub emitter_edge_pixels: usize,
     /// Where the caller wrote the image.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub output: Option<PathBuf>,
@@ -606,7 +610,8 @@ impl<'a> PassLoop<'a> {
             .iter()
             .zip(&films)
             .zip(self.render_seconds)
-            .map(|((c, f), render_seconds)| CameraReport {
+            .zip(&self.accs)
+            .map(|(((c, f), render_seconds), acc)| CameraReport {
                 camera: c.name.clone(),
                 index: c.index,
                 width: f.width,
@@ -614,6 +619,7 @@ impl<'a> PassLoop<'a> {
                 render_seconds,
                 mean_rgb: f.mean(),
                 nonfinite_pixels: f.nonfinite(),
+                emitter_edge_pixels: acc.emitter_edge_pixels(),
                 output: None,
                 png: None,
             })

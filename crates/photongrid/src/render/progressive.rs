@@ -110,6 +110,16 @@ impl Accumulator {
         }
     }
 
+    /// Pixels at the outline of an emitter in view (0 before the first pass, and for SPPM).
+    pub fn emitter_edge_pixels(&self) -> usize {
+        match self {
+            Accumulator::Average {
+                edges: Some(Some(e)), ..
+            } => e.count(),
+            _ => 0,
+        }
+    }
+
     /// The image so far.
     pub fn film(&self) -> Film {
         match self {
