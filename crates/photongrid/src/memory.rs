@@ -6,9 +6,9 @@
 //! The estimate adds up what stays allocated for the whole render and the largest transient
 //! peak on top of it:
 //! - the scene (triangles, textures) and its BVH;
-//! - per camera, its image across passes: 96 bytes a pixel (sum, AOVs, the final film), or
-//!   with `--method sppm` 20 bytes per camera *sample* (radius, count, flux of each of the
-//!   `spp` samples of each pixel, kept across passes) plus 96 a pixel;
+//! - per camera, its image across passes: 97 bytes a pixel (sum, AOVs, emitter-edge flags,
+//!   the final film), or with `--method sppm` 20 bytes per camera *sample* (radius, count, flux
+//!   of each of the `spp` samples of each pixel, kept across passes) plus 97 a pixel;
 //! - while one camera renders and is written: its pass film and the encoded image (72 bytes
 //!   a pixel);
 //! - one pass's photons: stored photons per emitted path from the scene's mean albedo
@@ -26,8 +26,8 @@ use crate::scene::{Camera, Scene, Surface, Triangle};
 use crate::settings::Settings;
 
 /// Bytes a pixel of a camera's image costs across passes (accumulated sum 12, AOVs 36, the
-/// final film 48).
-const BYTES_PER_PIXEL: u64 = 96;
+/// emitter-edge flag 1, the final film 48).
+const BYTES_PER_PIXEL: u64 = 97;
 /// Bytes a pixel costs while one camera renders a pass and is written (the pass's film 48,
 /// the channels and encoded bytes of the EXR 24).
 const TRANSIENT_BYTES_PER_PIXEL: u64 = 72;
@@ -283,9 +283,9 @@ fn image_items(items: &mut Items, cameras: &[&Camera], settings: &Settings) {
 
 /// One pass's photons; returns how many are stored.
 fn photon_items(items: &mut Items, scene: &SceneFootprint, settings: &Settings) -> u64 {
+    // A time budget may ask for more where caustics carry much of the light.
+    let boost = if settings.time.is_some() { CAUSTIC_BOOST } else { 1 };
     let caustic = if scene.specular && settings.photons > 0 {
-        // A time budget may ask for more where caustics carry much of the light.
-        let boost = if settings.time.is_some() { CAUSTIC_BOOST } else { 1 };
         settings.caustic_photons.saturating_mul(boost) as u64
     } else {
         0
@@ -304,7 +304,9 @@ fn photon_items(items: &mut Items, scene: &SceneFootprint, settings: &Settings) 
         format!(
             "one pass's photons (about {stored} stored: {} paths × {per_path:.1} bounces at mean albedo {rho:.2}{}, {per_photon} bytes each)",
             settings.photons,
-            if caustic > 0 {
+            if caustic > 0 && boost > 1 {
+                format!(", plus {caustic} caustic paths: {boost}× --caustic-photons, as a time budget asks where caustics carry much of the light")
+            } else if caustic > 0 {
                 format!(", plus {caustic} caustic paths")
             } else {
                 String::new()

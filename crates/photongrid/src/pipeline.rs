@@ -168,8 +168,8 @@ pub struct CameraReport {
     pub mean_rgb: [f64; 3],
     /// Pixels that are NaN or infinite.
     pub nonfinite_pixels: usize,
-    /// Pixels at the outline of an emitter in view, whose directly seen emission took 16
-    /// emission-only rays per sample (`render::emitter_edges`).
+    /// Pixels at the outline of an emitter in view, whose directly seen emission took
+    /// `render::emitter_edges::EDGE_RAYS` emission-only rays per sample (0 under SPPM).
     #[serde(default)]
     pub emitter_edge_pixels: usize,
     /// Where the caller wrote the image.

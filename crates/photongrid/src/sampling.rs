@@ -88,12 +88,18 @@ pub mod stream {
 /// Scrambling"). Every power-of-two run of samples starting at 0 is a (0, m, 2)-net, so a pixel's
 /// samples stay stratified across progressive passes (pass `p` continues at the index where
 /// pass `p − 1` stopped) and an edge in any direction is anti-aliased far better than by
-/// independent jitters.
+/// independent jitters. Indices wrap at 2³² (the sequence then starts again).
 pub fn pixel_sample(index: u32, seed: u64) -> Vec2 {
     let x = owen_scramble(index.reverse_bits(), seed as u32);
     let y = owen_scramble(sobol_second_dimension(index), (seed >> 32) as u32);
     let unit = |v: u32| (v >> 8) as f32 * (1.0 / 16_777_216.0);
     Vec2::new(unit(x), unit(y))
+}
+
+/// The scramble of one pixel's sequence of positions for `purpose` (a [`stream`] key): fixed
+/// by the render's seed, so every pass continues the same sequence.
+pub fn pixel_scramble(seed: u64, purpose: u64, pixel: u64) -> u64 {
+    mix64(seed ^ mix64(purpose ^ pixel << 8))
 }
 
 /// The Sobol sequence's second dimension (primitive polynomial x + 1: direction numbers

@@ -185,9 +185,9 @@ pub const INTERIOR_COVERAGE: f32 = 0.9;
 const MIN_INDIRECT_PHOTONS: f32 = 64.0;
 
 impl MultiscaleGrids {
-    /// One layer's estimate at `p` of the plane texture `tex`. No kernel reaches farther than
-    /// the open space in front of the surface it covers (indirect layer: light next to a shelf
-    /// board standing out of a wall is not that of the wall across it).
+    /// One layer's estimate at `p` of the plane texture `tex`. No kernel of global light reaches
+    /// farther than the open space in front of the surface it covers: light next to a shelf
+    /// board standing out of a wall is not that of the wall across it.
     pub fn layer_estimate(&self, tex: &[LayerTexture], layer: usize, p: Vec3, gamma: Gammas) -> Option<LayerEstimate> {
         let floor = self.mean_power[layer] * self.mean_power[layer];
         let t = &tex[layer];
@@ -219,7 +219,8 @@ impl MultiscaleGrids {
 
     /// Total irradiance (every layer) at a point on a plane, for final-gather rays: the
     /// resolved textures where [`MultiscaleGrids::resolve_for_gathering`] built them, else
-    /// the estimate at the point. None off the planes.
+    /// (and in their outline texels, [`Resolved::outline`]) the estimate at the point. None
+    /// off the planes.
     pub fn irradiance(&self, triangle: u32, p: Vec3, normal: Vec3, gamma: Gammas) -> Option<Rgb> {
         let tex = self.texture_facing(triangle, normal)?;
         Some(

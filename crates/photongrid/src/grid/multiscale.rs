@@ -188,8 +188,8 @@ pub struct Resolved {
     pub h: usize,
     /// Irradiance per texel (row-major); None where no kernel covers surface.
     pub values: Vec<Option<Rgb>>,
-    /// Texels on the surface's outline (partly covered, or next to a texel without surface
-    /// or the grid's border). Interpolation there holds the value of the texel's centroid up
+    /// Texels on or off the surface's outline (partly covered or empty, or next to a texel
+    /// without surface or to the grid's border). Interpolation there holds the value of the texel's centroid up
     /// to the edge, while light often changes fastest there (the foot of a wall gets the
     /// floor's light): rays landing in them take the estimate at their own point.
     pub outline: Vec<bool>,
@@ -922,6 +922,41 @@ mod tests {
         assert!((half.area_moment2[0] - 1.0 / 24.0).abs() < 1e-6, "{half:?}");
         assert!(half.area_moment2[1].abs() < 1e-6, "{half:?}");
         assert_eq!(clipped_moments(&t, 1.0, 1.0).area, 0.0);
+    }
+
+    #[test]
+    fn the_outline_is_the_ring_of_texels_at_the_surface_edge() {
+        let tris = square(2.0);
+        let set = detect_planes(&tris, &PlaneParams::default());
+        let photon = Photon::new(
+            Vec3::new(1.0, 0.0, 1.0),
+            Rgb::ONE,
+            Vec3::Y,
+            Vec3::Y,
+            PhotonKind::Indirect,
+        );
+        let probes = Probes {
+            buried: &|_, _| false,
+            clearance: &|_, _| f32::INFINITY,
+        };
+        let g = MultiscaleGrids::build(set, &tris, &[photon], &[0], &MultiscaleParams::default(), &probes);
+        let tex = &g.textures[0][INDIRECT];
+        for level in 0..tex.level_count().min(4) {
+            let lv = &tex.levels[level];
+            let outline = tex.outline(level);
+            for (i, &o) in outline.iter().enumerate() {
+                let (x, y) = (i % lv.w, i / lv.w);
+                let border = x == 0 || y == 0 || x + 1 == lv.w || y + 1 == lv.h;
+                if border {
+                    assert!(o, "level {level}: border texel ({x}, {y}) not on the outline");
+                }
+                // Inside the ring every texel is whole and surrounded by surface.
+                let inner = x >= 2 && y >= 2 && x + 2 < lv.w && y + 2 < lv.h;
+                if inner {
+                    assert!(!o, "level {level}: inner texel ({x}, {y}) on the outline");
+                }
+            }
+        }
     }
 
     #[test]

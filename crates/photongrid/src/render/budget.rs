@@ -151,7 +151,8 @@ pub const MIN_PATHS: usize = 20_000;
 /// camera's costs the least certain (it may be off by this factor and still end in time).
 pub const PLANNED_PASSES: f64 = 1.6;
 /// After the first pass, the costs it measured size the passes for the time left so that
-/// about this many fit.
+/// about this many fit: little more than one, as those costs are the pass's own and a camera
+/// pass that overruns is cut at the deadline (a small fill pass used the rest less well).
 pub const REPLANNED_PASSES: f64 = 1.1;
 
 /// How the passes of a time-budgeted render are sized, and why.

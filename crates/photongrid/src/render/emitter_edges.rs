@@ -1,9 +1,10 @@
 //! Pixels where the camera sees the edge of an emitter. An emitter seen directly is often tens of
 //! times brighter than the surfaces around it, so at its outline the share of the pixel it
-//! covers is the largest noise in the image (on cornell_area most of the 8×8-block error at
-//! 15 s). There, each sample's emission is replaced by the mean of [`EDGE_RAYS`] emission-only
-//! camera rays (a ray and a material lookup each, no shading): an unbiased estimate of the
-//! same integral with many more positions, for almost nothing.
+//! covers can be the largest noise in the image (measured: docs/architecture.md, "Camera
+//! samples"). There, each sample's emission is replaced by the mean of [`EDGE_RAYS`]
+//! emission-only camera rays (a ray and a material lookup each, no shading): an unbiased
+//! estimate of the same integral with many more positions, for almost nothing. The flags are
+//! found once per camera, at the first pass, with one ray per pixel; SPPM does not use them.
 
 use super::{seen_emission, CameraPass};
 use crate::sampling::{self, stream};
@@ -83,7 +84,7 @@ fn emission_along(pass: &CameraPass<'_>, film: Vec2) -> Rgb {
 /// passes as the samples' own ([`sampling::pixel_sample`]).
 pub fn edge_emission(pass: &CameraPass<'_>, x: usize, y: usize, index: u32) -> Rgb {
     let pixel = (y * pass.settings.width as usize + x) as u64;
-    let scramble = sampling::mix64(pass.settings.sequence_seed ^ sampling::mix64(stream::EDGE_RAYS ^ pixel << 8));
+    let scramble = sampling::pixel_scramble(pass.settings.sequence_seed, stream::EDGE_RAYS, pixel);
     let first = index.wrapping_mul(EDGE_RAYS);
     let sum = (0..EDGE_RAYS).fold(Rgb::ZERO, |s, k| {
         let film = Vec2::new(x as f32, y as f32) + sampling::pixel_sample(first.wrapping_add(k), scramble);

@@ -109,7 +109,8 @@ pub struct CameraPass<'a> {
 }
 
 /// Render a camera pass into a film. `progress(rows)` is called as rows finish (each row once
-/// per sample per pixel: the samples are rendered as whole-image sweeps).
+/// per sample per pixel: the samples are rendered as whole-image sweeps). Without emitter
+/// edges ([`emitter_edges`]): the progressive [`progressive::Accumulator`] finds and uses them.
 pub fn render(pass: CameraPass<'_>, progress: &(dyn Fn(usize) + Sync)) -> Film {
     let all = Cut {
         deadline: None,
@@ -203,7 +204,7 @@ fn render_sweep(
                     tracer.skip_seen_emission = edge;
                     row[x] = tracer.radiance(o, d, 0, &mut rng, &mut first);
                     if edge {
-                        row[x] += emitter_edges::edge_emission(&pass, x, y, settings.first_sample + s);
+                        row[x] += emitter_edges::edge_emission(&pass, x, y, settings.first_sample.wrapping_add(s));
                     }
                     if s == 0 {
                         aovs[x].depth *= d.dot(camera.forward()); // along the axis, see Aov
@@ -243,7 +244,7 @@ fn camera_ray(camera: &Camera, settings: &RenderSettings, x: usize, y: usize, s:
     let spp = settings.spp.max(1) as u64;
     let pixel = (y * w as usize + x) as u64;
     let rng = Rng::keyed(settings.seed, stream::CAMERA, pixel * spp + s as u64);
-    let scramble = sampling::mix64(settings.sequence_seed ^ sampling::mix64(stream::PIXEL ^ pixel << 8));
+    let scramble = sampling::pixel_scramble(settings.sequence_seed, stream::PIXEL, pixel);
     let index = settings.first_sample.wrapping_add(s);
     let film_pos = Vec2::new(x as f32, y as f32) + sampling::pixel_sample(index, scramble);
     let (o, d) = camera.generate_ray(film_pos, w, h);

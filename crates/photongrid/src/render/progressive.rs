@@ -87,7 +87,7 @@ impl Accumulator {
                     *aov = swept.film.aov;
                 }
                 *passes += 1;
-                *samples += swept.samples;
+                *samples = samples.wrapping_add(swept.samples);
                 swept.samples
             }
         }
@@ -101,11 +101,11 @@ impl Accumulator {
         }
     }
 
-    /// Samples per pixel added so far: where the next pass continues each pixel's sequence of
-    /// sample positions.
+    /// Samples per pixel added so far (modulo 2³²): where the next pass continues each pixel's
+    /// sequence of sample positions.
     pub fn samples(&self) -> u32 {
         match self {
-            Accumulator::Sppm(s) => s.passes() * s.spp(),
+            Accumulator::Sppm(s) => s.passes().wrapping_mul(s.spp()),
             Accumulator::Average { samples, .. } => *samples,
         }
     }
