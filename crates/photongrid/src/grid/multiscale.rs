@@ -188,10 +188,12 @@ pub struct Resolved {
     pub h: usize,
     /// Irradiance per texel (row-major); None where no kernel covers surface.
     pub values: Vec<Option<Rgb>>,
-    /// Texels on or off the surface's outline (partly covered or empty, or next to a texel
-    /// without surface or to the grid's border). Interpolation there holds the value of the texel's centroid up
-    /// to the edge, while light often changes fastest there (the foot of a wall gets the
-    /// floor's light): rays landing in them take the estimate at their own point.
+    /// Texels on or off the surface's outline (partly covered or empty, next to a texel
+    /// without surface or to the grid's border, or with something standing within their
+    /// reach). Interpolation there holds the value of the texel's centroid up to the edge,
+    /// or mixes the light on both sides of a wall's foot, while light often changes fastest
+    /// there (the foot of a wall gets the floor's light): rays landing in them take the
+    /// estimate at their own point.
     pub outline: Vec<bool>,
 }
 
@@ -291,11 +293,14 @@ impl LayerTexture {
     }
 
     /// The texels of `level` on the surface's outline (see [`Resolved::outline`]): covering
-    /// less than all their area, or next (4-neighbours) to one with no surface or to the
-    /// grid's border.
+    /// less than all their area, next (4-neighbours) to one with no surface or to the grid's
+    /// border, or with something standing within their reach (clearance below a kernel's
+    /// reach at this level: the foot of a wall on a floor that runs on behind it, where one
+    /// texel holds the lit floor and the dark one behind).
     pub fn outline(&self, level: usize) -> Vec<bool> {
         let lv = &self.levels[level];
         let full = self.kernel_area(level) * (1.0 - 1e-3);
+        let reach = self.kernel_reach(level);
         let covered = |x: isize, y: isize| {
             x >= 0
                 && y >= 0
@@ -307,6 +312,7 @@ impl LayerTexture {
             .map(|i| {
                 let (x, y) = ((i % lv.w) as isize, (i / lv.w) as isize);
                 lv.texels[i].area < full
+                    || lv.texels[i].clearance < reach
                     || [(-1, 0), (1, 0), (0, -1), (0, 1)]
                         .iter()
                         .any(|&(dx, dy)| !covered(x + dx, y + dy))
@@ -957,6 +963,51 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn texels_at_the_foot_of_a_wall_are_on_the_outline() {
+        // A wall stands across the square at x = 1.1: the open space in front of the floor
+        // is the distance a 45° probe travels to it.
+        let tris = square(2.0);
+        let set = detect_planes(&tris, &PlaneParams::default());
+        // Photons everywhere, so that the fine grid has many texels.
+        let photons: Vec<Photon> = (0..64 * 64)
+            .map(|i| {
+                let p = Vec3::new((i % 64) as f32 + 0.5, 0.0, (i / 64) as f32 + 0.5) / 32.0;
+                Photon::new(p, Rgb::ONE, Vec3::Y, Vec3::Y, PhotonKind::Indirect)
+            })
+            .collect();
+        let probes = Probes {
+            buried: &|_, _| false,
+            clearance: &|p: Vec3, _| (p.x - 1.1).abs() * std::f32::consts::SQRT_2,
+        };
+        let triangles = vec![0; photons.len()];
+        let g = MultiscaleGrids::build(set, &tris, &photons, &triangles, &MultiscaleParams::default(), &probes);
+        let tex = &g.textures[0][INDIRECT];
+        let (mut at_wall, mut away) = (0, 0);
+        for level in 2..tex.level_count().min(5) {
+            let lv = &tex.levels[level];
+            let side = (1u32 << level) as f32;
+            let outline = tex.outline(level);
+            for (i, &o) in outline.iter().enumerate() {
+                let (x, y) = (i % lv.w, i / lv.w);
+                if x == 0 || y == 0 || x + 1 == lv.w || y + 1 == lv.h {
+                    continue; // the ring at the square's edge
+                }
+                let a = tex.plane.grid_to_world(x as f32 * side, y as f32 * side).x;
+                let b = tex.plane.grid_to_world((x + 1) as f32 * side, (y + 1) as f32 * side).x;
+                let (lo, hi) = (a.min(b), a.max(b));
+                if lo < 1.1 && hi > 1.1 {
+                    assert!(o, "level {level}: texel ({x}, {y}) under the wall not on the outline");
+                    at_wall += 1;
+                } else if (if hi <= 1.1 { 1.1 - hi } else { lo - 1.1 }) > tex.kernel_reach(level) {
+                    assert!(!o, "level {level}: texel ({x}, {y}) far from the wall on the outline");
+                    away += 1;
+                }
+            }
+        }
+        assert!(at_wall > 0 && away > 0, "{at_wall} texels at the wall, {away} away");
     }
 
     #[test]
