@@ -612,21 +612,23 @@ impl MultiscaleGrids {
     pub fn add(&mut self, photons: &[Photon], triangles: &[u32]) {
         let started = std::time::Instant::now();
         let (mut power, mut n) = ([0.0f64; LAYERS], [0usize; LAYERS]);
-        let mut on_plane: Vec<Vec<u32>> = vec![Vec::new(); self.textures.len()];
+        // Photon ids per plane and layer: each layer texture counts its own photons, in the
+        // order they were traced (deterministic), in parallel with the others (most photons
+        // land on one floor, so planes alone leave the cores idle).
+        let mut on_plane: Vec<Vec<u32>> = vec![Vec::new(); self.textures.len() * LAYERS];
         for (i, (p, &t)) in photons.iter().zip(triangles).enumerate() {
             let layer = layer_of(p.kind());
             power[layer] += luminance(p.power()) as f64;
             n[layer] += 1;
             let plane = self.set.plane_of_triangle.get(t as usize).copied().unwrap_or(NO_PLANE);
             if plane != NO_PLANE {
-                on_plane[plane as usize].push(i as u32);
+                on_plane[plane as usize * LAYERS + layer].push(i as u32);
             }
         }
-        // Each plane counts its own photons (in the order they were traced: deterministic).
-        self.textures.par_iter_mut().zip(on_plane).for_each(|(tex, ids)| {
+        let layers: Vec<&mut LayerTexture> = self.textures.iter_mut().flatten().collect();
+        layers.into_par_iter().zip(on_plane).for_each(|(tex, ids)| {
             for i in ids {
-                let p = &photons[i as usize];
-                tex[layer_of(p.kind())].add_photon(p);
+                tex.add_photon(&photons[i as usize]);
             }
         });
         self.passes += 1;
@@ -806,18 +808,25 @@ fn coverage(plane: &Plane, tris: &[[Vec3; 3]]) -> Vec<Texel> {
         let x1 = (hi.x.ceil().max(1.0) as usize).min(ru);
         let y0 = (lo.y.floor().max(0.0) as usize).min(rv - 1);
         let y1 = (hi.y.ceil().max(1.0) as usize).min(rv);
-        let inside = |q: Vec2| {
-            let e = |a: Vec2, b: Vec2| (b - a).perp_dot(q - a);
-            let (e0, e1, e2) = (e(g[0], g[1]), e(g[1], g[2]), e(g[2], g[0]));
-            (e0 >= 0.0 && e1 >= 0.0 && e2 >= 0.0) || (e0 <= 0.0 && e1 <= 0.0 && e2 <= 0.0)
+        // Edge functions signed to be positive inside, whichever way the triangle winds.
+        let sign = if (g[1] - g[0]).perp_dot(g[2] - g[0]) < 0.0 {
+            -1.0
+        } else {
+            1.0
         };
+        let edge = |k: usize, q: Vec2| sign * (g[(k + 1) % 3] - g[k]).perp_dot(q - g[k]);
+        const CORNERS: [(f32, f32); 4] = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)];
         for j in y0..y1 {
             for i in x0..x1 {
                 let (x, y) = (i as f32, j as f32);
-                // A cell whose four corners are inside the (convex) triangle is covered whole.
-                let whole = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]
-                    .iter()
-                    .all(|&(dx, dy)| inside(Vec2::new(x + dx, y + dy)));
+                let corner = |c: usize| Vec2::new(x + CORNERS[c].0, y + CORNERS[c].1);
+                // A cell wholly outside one edge misses the triangle (half of a quad's
+                // bounding box); one whose four corners are inside the (convex) triangle is
+                // covered whole; only cells the outline crosses are clipped.
+                if (0..3).any(|k| (0..4).all(|c| edge(k, corner(c)) < 0.0)) {
+                    continue;
+                }
+                let whole = (0..4).all(|c| (0..3).all(|k| edge(k, corner(c)) >= 0.0));
                 let m = if whole { WHOLE_CELL } else { clipped_moments(&g, x, y) };
                 area[j * ru + i].add(&m, cell_area);
             }
@@ -850,7 +859,11 @@ const WHOLE_CELL: Texel = Texel {
 /// Area and moments (about the square's centre) of the polygon `poly` inside the unit square
 /// `[x, x+1] × [y, y+1]` (Sutherland–Hodgman, then Green's theorem).
 fn clipped_moments(poly: &[Vec2], x: f32, y: f32) -> Texel {
-    let mut p: Vec<Vec2> = poly.to_vec();
+    // A triangle clipped by four half-planes has at most 7 vertices; each clip adds one.
+    const MAX: usize = 8;
+    let mut p = [Vec2::ZERO; MAX];
+    let mut len = poly.len().min(MAX);
+    p[..len].copy_from_slice(&poly[..len]);
     let edges: [(Vec2, f32); 4] = [
         (Vec2::X, x),
         (-Vec2::X, -(x + 1.0)),
@@ -858,22 +871,26 @@ fn clipped_moments(poly: &[Vec2], x: f32, y: f32) -> Texel {
         (-Vec2::Y, -(y + 1.0)),
     ];
     for (n, d) in edges {
-        if p.is_empty() {
+        if len == 0 {
             return Texel::default();
         }
-        let mut out = Vec::with_capacity(p.len() + 2);
-        for i in 0..p.len() {
-            let (a, b) = (p[i], p[(i + 1) % p.len()]);
+        let mut out = [Vec2::ZERO; MAX];
+        let mut m = 0;
+        for i in 0..len {
+            let (a, b) = (p[i], p[(i + 1) % len]);
             let (da, db) = (n.dot(a) - d, n.dot(b) - d);
-            if da >= 0.0 {
-                out.push(a);
+            if da >= 0.0 && m < MAX {
+                out[m] = a;
+                m += 1;
             }
-            if (da >= 0.0) != (db >= 0.0) {
-                out.push(a + (b - a) * (da / (da - db)));
+            if (da >= 0.0) != (db >= 0.0) && m < MAX {
+                out[m] = a + (b - a) * (da / (da - db));
+                m += 1;
             }
         }
-        p = out;
+        (p, len) = (out, m);
     }
+    let p = &p[..len];
     let c = Vec2::new(x + 0.5, y + 0.5);
     let (mut a, mut sx, mut sy, mut ixx, mut ixy, mut iyy) = (0.0f32, 0.0, 0.0, 0.0, 0.0, 0.0);
     for i in 0..p.len() {
