@@ -21,7 +21,7 @@
 //! loader's default budget, `MemTotal` of `/proc/meminfo`), else 8 GiB.
 
 use crate::estimate::Accumulation;
-use crate::render::budget::CAUSTIC_BOOST;
+use crate::render::budget::{CAUSTIC_BOOST, GLOBAL_BOOST_MAX};
 use crate::scene::{Camera, Scene, Surface, Triangle};
 use crate::settings::Settings;
 
@@ -283,8 +283,11 @@ fn image_items(items: &mut Items, cameras: &[&Camera], settings: &Settings) {
 
 /// One pass's photons; returns how many are stored.
 fn photon_items(items: &mut Items, scene: &SceneFootprint, settings: &Settings) -> u64 {
-    // A time budget may ask for more where caustics carry much of the light.
+    // A time budget may ask for more caustic photons where caustics carry much of the light,
+    // and more global photons where the planes count them and they are cheap.
     let boost = if settings.time.is_some() { CAUSTIC_BOOST } else { 1 };
+    let global_boost = if settings.time.is_some() { GLOBAL_BOOST_MAX } else { 1.0 };
+    let paths = (settings.photons as f64 * global_boost).min(u64::MAX as f64 / 1024.0) as u64;
     let caustic = if scene.specular && settings.photons > 0 {
         settings.caustic_photons.saturating_mul(boost) as u64
     } else {
@@ -298,12 +301,16 @@ fn photon_items(items: &mut Items, scene: &SceneFootprint, settings: &Settings) 
         depth as f64
     };
     let gather = settings.effective_gather() > 0;
-    let stored = (settings.photons as f64 * per_path + caustic as f64).min(u64::MAX as f64 / 1024.0) as u64;
+    let stored = (paths as f64 * per_path + caustic as f64).min(u64::MAX as f64 / 1024.0) as u64;
     let per_photon = BYTES_PER_PHOTON + if gather { GATHER_BYTES_PER_PHOTON } else { 0 };
     items.add(
         format!(
-            "one pass's photons (about {stored} stored: {} paths × {per_path:.1} bounces at mean albedo {rho:.2}{}, {per_photon} bytes each)",
-            settings.photons,
+            "one pass's photons (about {stored} stored: {paths} paths{} × {per_path:.1} bounces at mean albedo {rho:.2}{}, {per_photon} bytes each)",
+            if global_boost > 1.0 {
+                format!(" (up to {global_boost}× --photons, as a time budget asks where photons are cheap)")
+            } else {
+                String::new()
+            },
             if caustic > 0 && boost > 1 {
                 format!(", plus {caustic} caustic paths: {boost}× --caustic-photons, as a time budget asks where caustics carry much of the light")
             } else if caustic > 0 {

@@ -7,7 +7,7 @@
 use crate::accel::Accel;
 use crate::estimate::{Accumulation, Estimator, Gammas, IrradianceCache, PassGrids, PhotonMap};
 use crate::film::Film;
-use crate::grid::multiscale::{MultiscaleGrids, MultiscaleParams, Probes};
+use crate::grid::multiscale::{MultiscaleGrids, MultiscaleParams, Probes, DIRECT, INDIRECT};
 use crate::grid::PlaneGrids;
 use crate::grid::{GridParams, Grids};
 use crate::photon::{trace_photons, Photon, PhotonKind, PhotonStats, TraceSettings};
@@ -701,7 +701,7 @@ pub fn plan_passes(
 ) -> BudgetReport {
     let requested = PassSize::of(settings, caustic_photons(scene, settings));
     let costs = probe_costs(scene, accel, cameras, settings, requested, progress);
-    let requested = requested.for_budget(&costs);
+    let requested = requested.for_budget(&costs, left - costs.probe_seconds);
     times.probe += costs.probe_seconds;
     let plan = plan(&costs, left - costs.probe_seconds, requested, PLANNED_PASSES);
     tracing::info!(reason = plan.reason.as_str(), "pass size");
@@ -806,6 +806,10 @@ fn probe_costs(
         per_path,
         per_caustic_path,
         caustic_share: photons.stats.caustic_power / photons.stats.stored_power.max(f64::MIN_POSITIVE),
+        plane_share: grids.multiscale.as_ref().map_or(0.0, |g| {
+            let global = (photons.stats.direct + photons.stats.indirect).max(1) as f64;
+            (g.photons_counted(DIRECT) + g.photons_counted(INDIRECT)) / global
+        }),
         per_sample: PROBE_CAMERA_BIAS * plain / samples,
         per_gather_ray: if probe.gather > 0 {
             PROBE_CAMERA_BIAS * (gathered - plain).max(0.0) / gather_rays

@@ -5,6 +5,7 @@
 
 use photongrid::pipeline::{render, RenderRequest};
 use photongrid::progress::Progress;
+use photongrid::render::budget::GLOBAL_BOOST_MAX;
 use photongrid::render::progressive::Stop;
 use photongrid::Settings;
 use std::time::{Duration, Instant};
@@ -42,8 +43,12 @@ fn a_budget_sizes_passes_from_a_probe_and_says_why() {
     let b = r.report.budget.expect("a budgeted render reports its plan");
     assert!(b.costs.per_path > 0.0 && b.costs.per_sample > 0.0, "{b:?}");
     assert_eq!(b.costs.pixels, 64 * 48);
-    // An hour is plenty: the requested pass is kept, and the pass count still applies.
-    assert_eq!(b.plan.size.photons, settings.photons);
+    // An hour is plenty: the requested pass is kept (with more global photons where they
+    // are cheap beside the camera's side, at most GLOBAL_BOOST_MAX times), and the pass count
+    // still applies.
+    assert_eq!(b.plan.size, b.requested);
+    let boost = b.requested.photons as f64 / settings.photons as f64;
+    assert!((1.0..=GLOBAL_BOOST_MAX + 1e-6).contains(&boost), "{b:?}");
     assert_eq!(b.plan.size.spp, settings.spp);
     assert!(b.plan.reason.contains("fits"), "{}", b.plan.reason);
     assert_eq!(r.report.passes.count, 2);

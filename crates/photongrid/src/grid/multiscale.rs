@@ -665,6 +665,15 @@ impl MultiscaleGrids {
             .filter(|t| crate::estimate::photon_map::faces(normal, t[0].plane.normal))
     }
 
+    /// Photons of `layer` the planes have counted, over all passes.
+    pub fn photons_counted(&self, layer: usize) -> f64 {
+        self.textures
+            .iter()
+            .flat_map(|t| &t[layer].levels[0].texels)
+            .map(|t| t.count as f64)
+            .sum()
+    }
+
     /// Memory of the textures.
     pub fn memory_bytes(&self) -> usize {
         self.textures.iter().flatten().map(LayerTexture::memory_bytes).sum()

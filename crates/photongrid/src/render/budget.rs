@@ -111,6 +111,11 @@ pub struct Costs {
     /// Share of the stored photon power that caustic photons carry.
     #[serde(default)]
     pub caustic_share: f64,
+    /// Share of the stored global photons that the multiscale planes count: there the
+    /// estimate widens its kernels where light is flat, so more photons lower the noise
+    /// (a k-nearest-neighbour estimate only narrows its radius).
+    #[serde(default)]
+    pub plane_share: f64,
     /// Camera pixels per pass, all cameras.
     pub pixels: u64,
     /// Wall seconds the probe took.
@@ -258,18 +263,48 @@ pub const CAUSTICS_FIRST_SHARE: f64 = 0.1;
 /// pass (measured at equal passes and per second: docs/time_budget.md).
 pub const CAUSTIC_BOOST: usize = 3;
 
+/// Most a time budget multiplies the global photons of a pass by ([`PassSize::for_budget`]).
+pub const GLOBAL_BOOST_MAX: f64 = 4.0;
+/// Share of the global photons the planes must count for a budget to buy more of them.
+pub const GLOBAL_BOOST_PLANE_SHARE: f64 = 0.5;
+
 impl PassSize {
     /// The pass a time budget asks for, given what the probe measured: [`CAUSTIC_BOOST`] times
-    /// the caustic photons where caustics carry much of the light.
-    pub fn for_budget(self, costs: &Costs) -> Self {
-        if costs.caustic_share >= CAUSTICS_FIRST_SHARE {
-            PassSize {
-                caustic_photons: self.caustic_photons.saturating_mul(CAUSTIC_BOOST),
-                ..self
-            }
+    /// the caustic photons where caustics carry much of the light, and more global photons
+    /// where the planes estimate most of them and they cost less than half the camera's
+    /// side of the pass — up to half of it, at most [`GLOBAL_BOOST_MAX`] times: there photons
+    /// lowered the error more per second than samples (measured in docs/time_budget.md).
+    /// The global photons are added only as far as the pass still fits [`PLANNED_PASSES`]
+    /// times in `left` seconds: a shorter budget shrinks the pass, photons first.
+    pub fn for_budget(self, costs: &Costs, left: f64) -> Self {
+        let caustic_photons = if costs.caustic_share >= CAUSTICS_FIRST_SHARE {
+            self.caustic_photons.saturating_mul(CAUSTIC_BOOST)
         } else {
-            self
+            self.caustic_photons
+        };
+        let size = PassSize {
+            caustic_photons,
+            ..self
+        };
+        PassSize {
+            photons: (self.photons as f64 * costs.global_boost(&size, left / PLANNED_PASSES)).round() as usize,
+            ..size
         }
+    }
+}
+
+impl Costs {
+    /// The factor [`PassSize::for_budget`] multiplies the global photons of `size` by, for a
+    /// pass of at most `target` seconds.
+    pub fn global_boost(&self, size: &PassSize, target: f64) -> f64 {
+        let global = size.photons as f64 * self.per_path;
+        let camera =
+            self.pixels as f64 * size.spp as f64 * (self.per_sample + size.gather as f64 * self.per_gather_ray);
+        if self.plane_share < GLOBAL_BOOST_PLANE_SHARE || !(global > 0.0) {
+            return 1.0;
+        }
+        let fits = 1.0 + (target - self.pass_seconds(size)) / global;
+        (camera / (2.0 * global)).min(fits).clamp(1.0, GLOBAL_BOOST_MAX)
     }
 }
 
@@ -443,6 +478,7 @@ mod tests {
             per_path: 1e-6,
             per_caustic_path: 0.4e-6,
             caustic_share: 0.2,
+            plane_share: 0.0,
             per_sample: 2e-6,
             per_gather_ray: 1e-6,
             pixels: 640 * 480,
@@ -461,14 +497,57 @@ mod tests {
 
     #[test]
     fn a_budget_asks_for_more_caustic_photons_only_where_caustics_carry_much_light() {
-        let heavy = requested().for_budget(&costs());
+        let heavy = requested().for_budget(&costs(), f64::INFINITY);
         assert_eq!(heavy.caustic_photons, CAUSTIC_BOOST * 1_000_000);
         assert_eq!((heavy.photons, heavy.spp, heavy.gather), (2_000_000, 4, 8));
         let light = Costs {
             caustic_share: 0.004,
             ..costs()
         };
-        assert_eq!(requested().for_budget(&light), requested());
+        assert_eq!(requested().for_budget(&light, f64::INFINITY), requested());
+    }
+
+    #[test]
+    fn a_budget_buys_global_photons_where_the_planes_count_them_and_they_are_cheap() {
+        // The camera's side: 307200 × 4 × (2e-6 + 8 × 1e-6) = 12.3 s; the global photons':
+        // 2 M × 1e-6 = 2 s, so up to 6.1 s (half the camera's) is worth 3.07 times the photons.
+        let planar = Costs {
+            plane_share: 0.9,
+            ..costs()
+        };
+        let b = requested().for_budget(&planar, f64::INFINITY);
+        let camera = planar.pixels as f64 * 4.0 * (2e-6 + 8.0 * 1e-6);
+        assert!((b.photons as f64 * 1e-6 - camera / 2.0).abs() < 1e-3, "{b:?}");
+        assert_eq!((b.spp, b.gather), (4, 8));
+        // Off the planes (k nearest neighbours) more photons narrow kernels, not noise.
+        let curved = Costs {
+            plane_share: 0.3,
+            ..planar
+        };
+        assert_eq!(requested().for_budget(&curved, f64::INFINITY).photons, 2_000_000);
+        // Photons already dearer than half the camera's side: none added.
+        let dear = Costs {
+            per_path: 4e-6,
+            ..planar
+        };
+        assert_eq!(requested().for_budget(&dear, f64::INFINITY).photons, 2_000_000);
+        // Very cheap photons: at most GLOBAL_BOOST_MAX times.
+        let cheap = Costs {
+            per_path: 1e-8,
+            ..planar
+        };
+        assert_eq!(
+            requested().for_budget(&cheap, f64::INFINITY).photons as f64,
+            2e6 * GLOBAL_BOOST_MAX
+        );
+        // A budget with room for about two passes of the request: photons are added only
+        // while the pass still fits PLANNED_PASSES times.
+        let full = planar.pass_seconds(&requested());
+        let left = 2.0 * full;
+        let b = requested().for_budget(&planar, left);
+        assert!(b.photons > 2_000_000, "{b:?}");
+        assert!(planar.pass_seconds(&b) <= left / PLANNED_PASSES * 1.0001, "{b:?}");
+        assert_eq!(requested().for_budget(&planar, full).photons, 2_000_000);
     }
 
     #[test]
@@ -630,6 +709,7 @@ mod tests {
             per_path: 2.6802417813333333e-06,
             per_caustic_path: 0.9802417813333333e-06,
             caustic_share: 0.05,
+            plane_share: 0.0,
             per_sample: 3.679861458333333e-06,
             per_gather_ray: 9.686567447916666e-07,
             pixels: 307200,
