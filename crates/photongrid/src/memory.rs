@@ -286,7 +286,11 @@ fn photon_items(items: &mut Items, scene: &SceneFootprint, settings: &Settings) 
     // A time budget may ask for more caustic photons where caustics carry much of the light,
     // and more global photons where the planes count them and they are cheap.
     let boost = if settings.time.is_some() { CAUSTIC_BOOST } else { 1 };
-    let global_boost = if settings.time.is_some() { GLOBAL_BOOST_MAX } else { 1.0 };
+    let global_boost = if settings.time.is_some() && settings.method.needs().multiscale {
+        GLOBAL_BOOST_MAX
+    } else {
+        1.0
+    };
     let paths = (settings.photons as f64 * global_boost).min(u64::MAX as f64 / 1024.0) as u64;
     let caustic = if scene.specular && settings.photons > 0 {
         settings.caustic_photons.saturating_mul(boost) as u64

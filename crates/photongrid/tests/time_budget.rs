@@ -5,7 +5,7 @@
 
 use photongrid::pipeline::{render, RenderRequest};
 use photongrid::progress::Progress;
-use photongrid::render::budget::GLOBAL_BOOST_MAX;
+use photongrid::render::budget::{GLOBAL_BOOST_MAX, GLOBAL_BOOST_PLANE_SHARE};
 use photongrid::render::progressive::Stop;
 use photongrid::Settings;
 use std::time::{Duration, Instant};
@@ -47,8 +47,20 @@ fn a_budget_sizes_passes_from_a_probe_and_says_why() {
     // are cheap beside the camera's side, at most GLOBAL_BOOST_MAX times), and the pass count
     // still applies.
     assert_eq!(b.plan.size, b.requested);
-    let boost = b.requested.photons as f64 / settings.photons as f64;
-    assert!((1.0..=GLOBAL_BOOST_MAX + 1e-6).contains(&boost), "{b:?}");
+    let c = &b.costs;
+    let expected = if c.plane_share < GLOBAL_BOOST_PLANE_SHARE {
+        1.0
+    } else {
+        let global = settings.photons as f64 * c.per_path;
+        let r = &b.requested;
+        let camera = c.pixels as f64 * r.spp as f64 * (c.per_sample + r.gather as f64 * c.per_gather_ray);
+        (camera / (2.0 * global)).clamp(1.0, GLOBAL_BOOST_MAX)
+    };
+    let photons = (settings.photons as f64 * expected).floor() as usize;
+    assert!(
+        b.requested.photons.abs_diff(photons) <= 1,
+        "{b:?}: expected {photons} global photons"
+    );
     assert_eq!(b.plan.size.spp, settings.spp);
     assert!(b.plan.reason.contains("fits"), "{}", b.plan.reason);
     assert_eq!(r.report.passes.count, 2);

@@ -804,13 +804,10 @@ fn coverage(plane: &Plane, tris: &[[Vec3; 3]]) -> Vec<Texel> {
     let cell_area = plane.cell_area();
     let mut area = vec![Texel::default(); ru * rv];
     for &t in &plane.triangles {
-        let g: Vec<Vec2> = tris[t as usize]
-            .iter()
-            .map(|&p| {
-                let (x, y) = plane.grid_coords(p);
-                Vec2::new(x, y)
-            })
-            .collect();
+        let g: [Vec2; 3] = tris[t as usize].map(|p| {
+            let (x, y) = plane.grid_coords(p);
+            Vec2::new(x, y)
+        });
         let lo = g[0].min(g[1]).min(g[2]);
         let hi = g[0].max(g[1]).max(g[2]);
         let x0 = (lo.x.floor().max(0.0) as usize).min(ru - 1);
@@ -868,8 +865,9 @@ const WHOLE_CELL: Texel = Texel {
 /// Area and moments (about the square's centre) of the polygon `poly` inside the unit square
 /// `[x, x+1] × [y, y+1]` (Sutherland–Hodgman, then Green's theorem).
 fn clipped_moments(poly: &[Vec2], x: f32, y: f32) -> Texel {
-    // A triangle clipped by four half-planes has at most 7 vertices; each clip adds one.
-    const MAX: usize = 8;
+    // A triangle clipped by four half-planes has at most 7 vertices (each clip adds one);
+    // rounding near a clip line may add another, hence the margin.
+    const MAX: usize = 16;
     let mut p = [Vec2::ZERO; MAX];
     let mut len = poly.len().min(MAX);
     p[..len].copy_from_slice(&poly[..len]);
@@ -888,6 +886,7 @@ fn clipped_moments(poly: &[Vec2], x: f32, y: f32) -> Texel {
         for i in 0..len {
             let (a, b) = (p[i], p[(i + 1) % len]);
             let (da, db) = (n.dot(a) - d, n.dot(b) - d);
+            debug_assert!(m + 2 <= MAX, "clipped polygon of {m} vertices");
             if da >= 0.0 && m < MAX {
                 out[m] = a;
                 m += 1;

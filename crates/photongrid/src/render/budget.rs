@@ -287,7 +287,8 @@ impl PassSize {
             ..self
         };
         PassSize {
-            photons: (self.photons as f64 * costs.global_boost(&size, left / PLANNED_PASSES)).round() as usize,
+            // Rounded down: the boosted pass must still fit.
+            photons: (self.photons as f64 * costs.global_boost(&size, left / PLANNED_PASSES)).floor() as usize,
             ..size
         }
     }
@@ -304,7 +305,11 @@ impl Costs {
             return 1.0;
         }
         let fits = 1.0 + (target - self.pass_seconds(size)) / global;
-        (camera / (2.0 * global)).min(fits).clamp(1.0, GLOBAL_BOOST_MAX)
+        let boost = (camera / (2.0 * global)).min(fits);
+        if boost.is_nan() {
+            return 1.0;
+        }
+        boost.clamp(1.0, GLOBAL_BOOST_MAX)
     }
 }
 
@@ -546,7 +551,10 @@ mod tests {
         let left = 2.0 * full;
         let b = requested().for_budget(&planar, left);
         assert!(b.photons > 2_000_000, "{b:?}");
-        assert!(planar.pass_seconds(&b) <= left / PLANNED_PASSES * 1.0001, "{b:?}");
+        assert!(planar.pass_seconds(&b) <= left / PLANNED_PASSES, "{b:?}");
+        let p = plan(&planar, left, b, PLANNED_PASSES);
+        assert_eq!(p.size, b, "{p:?}");
+        assert!(p.reason.contains("fits"), "{}", p.reason);
         assert_eq!(requested().for_budget(&planar, full).photons, 2_000_000);
     }
 
