@@ -140,12 +140,15 @@ impl Costs {
         }
     }
 
+    /// Predicted wall seconds of the camera samples and gather rays of a pass of `size`.
+    pub fn camera_seconds(&self, size: &PassSize) -> f64 {
+        let samples = self.pixels as f64 * size.spp as f64;
+        samples * (self.per_sample + size.gather as f64 * self.per_gather_ray)
+    }
+
     /// Predicted wall seconds of a pass of `size`.
     pub fn pass_seconds(&self, size: &PassSize) -> f64 {
-        let samples = self.pixels as f64 * size.spp as f64;
-        self.per_pass
-            + self.photon_seconds(size)
-            + samples * (self.per_sample + size.gather as f64 * self.per_gather_ray)
+        self.per_pass + self.photon_seconds(size) + self.camera_seconds(size)
     }
 }
 
@@ -211,11 +214,7 @@ pub fn plan(costs: &Costs, left: f64, requested: PassSize, passes: f64) -> Plan 
 /// `costs` corrected by what a pass of `size` measured: the photons' side (`photon_seconds`)
 /// and the camera's side (`camera_seconds`) each by its measured/predicted ratio.
 pub fn corrected(costs: &Costs, size: &PassSize, photon_seconds: f64, camera_seconds: f64) -> Costs {
-    let camera = costs.pass_seconds(&PassSize {
-        photons: 0,
-        caustic_photons: 0,
-        ..*size
-    }) - costs.per_pass;
+    let camera = costs.camera_seconds(size);
     let photons = costs.per_pass + costs.photon_seconds(size);
     let ratio = |measured: f64, predicted: f64| {
         if predicted > 0.0 && measured > 0.0 {
@@ -299,8 +298,7 @@ impl Costs {
     /// pass of at most `target` seconds.
     pub fn global_boost(&self, size: &PassSize, target: f64) -> f64 {
         let global = size.photons as f64 * self.per_path;
-        let camera =
-            self.pixels as f64 * size.spp as f64 * (self.per_sample + size.gather as f64 * self.per_gather_ray);
+        let camera = self.camera_seconds(size);
         if self.plane_share < GLOBAL_BOOST_PLANE_SHARE || !(global > 0.0) {
             return 1.0;
         }
