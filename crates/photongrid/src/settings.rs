@@ -174,7 +174,8 @@ pub enum Method {
     Sppm,
     /// The grids as the estimator: flux pyramids on the planes, the scale chosen per point
     /// by intersecting confidence intervals (flat light: wide, edges and caustics: narrow),
-    /// normalised by the surface actually covered; kNN off the planes.
+    /// normalised by the surface actually covered; off the planes the widest of nested kNN
+    /// discs that agrees with the narrower ones.
     Multiscale,
 }
 

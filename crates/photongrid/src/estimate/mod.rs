@@ -129,7 +129,8 @@ pub enum Estimator<'a> {
         shadow_count: f32,
     },
     /// The grids as the estimator ([`multiscale::gather`]): on a plane, each photon layer's
-    /// flux at the widest scale consistent with all finer ones; kNN elsewhere.
+    /// flux at the widest scale consistent with all finer ones; elsewhere the widest of nested
+    /// kNN discs consistent with all narrower ones ([`PhotonMap::adaptive_knn`]).
     Multiscale {
         /// This pass's photons (the fallback off the planes).
         map: &'a PhotonMap,
@@ -153,6 +154,12 @@ pub enum Estimator<'a> {
         k: usize,
     },
 }
+
+/// Off the planes, where the map holds global light (no final gathering), the multiscale
+/// estimate's discs may grow to this many times `neighbours` photons where the light is flat.
+/// A caustic map (final gathering on) stops at `neighbours`: wider discs changed nothing there
+/// and cost camera time (docs/multiscale.md).
+pub const OFF_PLANE_WIDENING: usize = 4;
 
 impl<'a> Estimator<'a> {
     /// The estimator of `settings.method` for pass `pass` (0-based) over `map` and the grids.
@@ -228,10 +235,14 @@ impl<'a> Estimator<'a> {
                 gathering,
             } => match grids.and_then(|g| multiscale::gather(g, q, gamma, direct, gathering)) {
                 Some(g) => g,
-                None => Gather {
-                    needs_gathering: gathering,
-                    ..map.knn(q.position, q.facing_normal, k, buf)
-                },
+                None => {
+                    // With final gathering the map holds caustics only.
+                    let k_max = if gathering { k } else { OFF_PLANE_WIDENING * k };
+                    Gather {
+                        needs_gathering: gathering,
+                        ..map.adaptive_knn(q.position, q.facing_normal, k_max, buf)
+                    }
+                }
             },
             Estimator::Adaptive {
                 map,

@@ -43,6 +43,19 @@ impl KnnBuffer {
         &self.out
     }
 
+    /// Results of the last query, nearest first.
+    pub fn sorted(&mut self) -> &[(u32, f32)] {
+        // The packed keys sort as integers (non-negative floats' bits keep their order).
+        self.keys.sort_unstable();
+        self.out.clear();
+        self.out.extend(
+            self.keys
+                .iter()
+                .map(|&key| (key as u32, f32::from_bits((key >> 32) as u32))),
+        );
+        &self.out
+    }
+
     /// Number of results of the last query.
     pub fn len(&self) -> usize {
         self.out.len()
