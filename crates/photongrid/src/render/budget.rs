@@ -251,6 +251,14 @@ pub fn fill(costs: &Costs, left: f64, size: PassSize, predicted: f64, measured: 
 /// this (docs/time_budget.md): final gathering smooths what they carry.
 pub const PHOTON_FLOOR_SHARE: f64 = 1.0 / 16.0;
 
+/// [`PHOTON_FLOOR_SHARE`] where the planes count at least [`GLOBAL_BOOST_PLANE_SHARE`] of the
+/// global photons and caustics carry little light: there the multiscale estimate shows the
+/// global photons' light directly, and a pass cut to 1/8 of them for a second sample per pixel
+/// had twice the block error of one with half of them (shelf_objects, cornell_glass at equal
+/// time: docs/time_budget.md). Where caustics carry much light the time goes to caustic
+/// photons first: a higher floor took it from them (pool_caustic).
+pub const PHOTON_FLOOR_SHARE_PLANES: f64 = 0.5;
+
 /// Caustic photons are kept before camera samples when caustics carry at least this share of
 /// the stored photon power (pool_caustic 0.17, ring_caustic 0.19; cornell_glass 0.007,
 /// shelf_objects 0.004): measured at equal time (docs/time_budget.md).
@@ -294,6 +302,16 @@ impl PassSize {
 }
 
 impl Costs {
+    /// The share of the requested global photons a shrunk pass keeps before it gives up camera
+    /// samples ([`PHOTON_FLOOR_SHARE`], [`PHOTON_FLOOR_SHARE_PLANES`]).
+    pub fn photon_floor_share(&self) -> f64 {
+        if self.plane_share >= GLOBAL_BOOST_PLANE_SHARE && self.caustic_share < CAUSTICS_FIRST_SHARE {
+            PHOTON_FLOOR_SHARE_PLANES
+        } else {
+            PHOTON_FLOOR_SHARE
+        }
+    }
+
     /// The factor [`PassSize::for_budget`] multiplies the global photons of `size` by, for a
     /// pass of at most `target` seconds.
     pub fn global_boost(&self, size: &PassSize, target: f64) -> f64 {
@@ -312,7 +330,7 @@ impl Costs {
 }
 
 /// A pass of `requested`'s shape that takes `target` seconds, giving up first what lowers the
-/// error least: photons down to [`PHOTON_FLOOR_SHARE`], then samples per pixel (down to 1),
+/// error least: photons down to [`Costs::photon_floor_share`], then samples per pixel (down to 1),
 /// then gather rays (down to 1), then photons down to [`MIN_PATHS`]. Where caustics carry
 /// much of the light ([`CAUSTICS_FIRST_SHARE`]) the caustic photons are given up only after
 /// the samples: a caustic's sharpness depends on them alone (passes average images, they do
@@ -333,7 +351,7 @@ pub fn shrink(costs: &Costs, target: f64, requested: PassSize) -> PassSize {
         slack: 2.0 * costs.per_path.max(costs.per_caustic_path) + 1e-9 * target,
         caustic_heavy: costs.caustic_share >= CAUSTICS_FIRST_SHARE,
     };
-    let g_lo = floor(requested.photons, PHOTON_FLOOR_SHARE);
+    let g_lo = floor(requested.photons, costs.photon_floor_share());
     let c_lo = floor(requested.caustic_photons, PHOTON_FLOOR_SHARE);
     let c_first = if fit.caustic_heavy {
         requested.caustic_photons
@@ -567,13 +585,51 @@ mod tests {
 
     #[test]
     fn a_short_budget_gives_up_global_photons_then_samples_then_caustic_photons() {
-        let c = costs();
+        short_budget_order(&costs());
+    }
+
+    /// Where the planes count the global photons and caustics carry little light, a pass keeps
+    /// half of them before it gives up a sample per pixel.
+    #[test]
+    fn where_the_planes_count_photons_half_of_them_outlast_samples() {
+        let c = Costs {
+            plane_share: 0.9,
+            caustic_share: 0.01,
+            ..costs()
+        };
+        assert_eq!(c.photon_floor_share(), PHOTON_FLOOR_SHARE_PLANES);
+        let caustic_heavy = Costs {
+            caustic_share: 0.2,
+            ..c
+        };
+        assert_eq!(caustic_heavy.photon_floor_share(), PHOTON_FLOOR_SHARE);
+        let half = requested().photons / 2;
+        let full = c.pass_seconds(&requested());
+        let mut cut_samples = false;
+        for left in [full, full / 2.0, full / 3.0, full / 4.0] {
+            let p = plan(&c, left, requested(), PLANNED_PASSES);
+            let target = left / PLANNED_PASSES;
+            assert!(p.size.photons >= half, "{p:?}");
+            if p.size.spp < requested().spp {
+                cut_samples = true;
+                let one_more = PassSize {
+                    photons: half,
+                    spp: p.size.spp + 1,
+                    ..p.size
+                };
+                assert!(c.pass_seconds(&one_more) > target, "{p:?}");
+            }
+        }
+        assert!(cut_samples);
+    }
+
+    fn short_budget_order(c: &Costs) {
         let full = c.pass_seconds(&requested());
         let mut last = requested();
-        let floor = |n: usize| (n as f64 * PHOTON_FLOOR_SHARE).round() as usize;
+        let floor = |n: usize| (n as f64 * c.photon_floor_share()).round() as usize;
         let mut cut_caustics = false;
         for left in [full * 1.5, full, full / 2.0, full / 4.0, full / 6.0, full / 8.0] {
-            let p = plan(&c, left, requested(), PLANNED_PASSES);
+            let p = plan(c, left, requested(), PLANNED_PASSES);
             let target = left / PLANNED_PASSES;
             assert!(p.predicted_pass_seconds <= target * 1.0001, "{p:?}");
             assert!(!p.over_budget);
