@@ -148,8 +148,8 @@ impl PhotonMap {
         }
     }
 
-    /// The widest of nested discs of the `k_max` nearest photons (holding 8, 16, 32, … photons
-    /// and all `k_max`) whose estimate agrees with every narrower one's ([`lepski_agrees`]).
+    /// The widest of nested discs of the `k_max` nearest photons (holding
+    /// [`ADAPTIVE_MIN_NEIGHBOURS`], twice as many, … photons and all `k_max`) whose estimate agrees with every narrower one's ([`lepski_agrees`]).
     /// Where the light is flat the disc grows to `k_max` photons (less noise than a fixed k);
     /// across a caustic's edge or a filament it stops at a few (sharp). For surfaces no plane
     /// grid covers.
@@ -250,6 +250,17 @@ mod tests {
     use crate::photon::PhotonKind;
     use crate::sampling::Rng;
 
+    /// A photon of `power` W on the plane y = 0, arriving from above.
+    fn photon(x: f32, z: f32, power: f32) -> Photon {
+        Photon::new(
+            Vec3::new(x, 0.0, z),
+            Rgb::splat(power),
+            Vec3::Y,
+            Vec3::Y,
+            PhotonKind::Caustic,
+        )
+    }
+
     /// Photons uniform over the square x, z ∈ [-1, 1] of the plane y = 0, `per_m2` per m² where
     /// `lit(x)`, carrying 1 W/m² there; and that irradiance.
     fn map(per_m2: f32, lit: impl Fn(f32) -> bool) -> (PhotonMap, f32) {
@@ -259,15 +270,7 @@ mod tests {
         let photons: Vec<Photon> = (0..n)
             .filter_map(|_| {
                 let (x, z) = (rng.uniform() * 2.0 - 1.0, rng.uniform() * 2.0 - 1.0);
-                lit(x).then(|| {
-                    Photon::new(
-                        Vec3::new(x, 0.0, z),
-                        Rgb::splat(power),
-                        Vec3::Y,
-                        Vec3::Y,
-                        PhotonKind::Caustic,
-                    )
-                })
+                lit(x).then(|| photon(x, z, power))
             })
             .collect();
         (PhotonMap::build(photons, 100, 4.0, 0.5), 1.0)
@@ -312,23 +315,11 @@ mod tests {
         let mut photons = Vec::new();
         for _ in 0..(4.0 * bg) as usize {
             let (x, z) = (rng.uniform() * 2.0 - 1.0, rng.uniform() * 2.0 - 1.0);
-            photons.push(Photon::new(
-                Vec3::new(x, 0.0, z),
-                Rgb::splat(power),
-                Vec3::Y,
-                Vec3::Y,
-                PhotonKind::Caustic,
-            ));
+            photons.push(photon(x, z, power));
         }
         for _ in 0..(9.0 * bg * 2.0 * width) as usize {
             let (x, z) = ((rng.uniform() - 0.5) * width, rng.uniform() * 2.0 - 1.0);
-            photons.push(Photon::new(
-                Vec3::new(x, 0.0, z),
-                Rgb::splat(power),
-                Vec3::Y,
-                Vec3::Y,
-                PhotonKind::Caustic,
-            ));
+            photons.push(photon(x, z, power));
         }
         let m = PhotonMap::build(photons, 100, 4.0, 0.5);
         let truth = 10.0;
