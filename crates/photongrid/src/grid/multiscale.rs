@@ -161,6 +161,22 @@ pub fn layer_of(kind: PhotonKind) -> usize {
     }
 }
 
+/// Photons are counted into the textures in chunks of this many, read in the order they were
+/// traced.
+const COUNT_CHUNK: usize = 1 << 20;
+
+/// Fine cells per run that a chunk's photons are sorted into before they are added: a run's
+/// texels (about 300 kB) stay in the cache while its photons are added.
+const COUNT_RUN_CELLS: usize = 4096;
+
+/// Where a photon lands in a layer's finest level (see `LayerTexture::landing`).
+#[derive(Clone, Copy, Debug, Default)]
+struct Landing {
+    cell: u32,
+    d: [f32; 2],
+    flux: [f32; 3],
+}
+
 /// One layer of one plane: its fine grid (sized for that layer's photons) and the pyramid
 /// of block sums above it. Level 0 accumulates raw sums over passes.
 #[derive(Clone, Debug)]
@@ -348,26 +364,44 @@ impl LayerTexture {
         })
     }
 
-    fn add_photon(&mut self, p: &Photon) {
+    /// Where photon `p` lands in level 0: its cell and its offset from the cell's centre
+    /// (fine cells); None for photons on the plane's other side (see `orient_to_the_light`)
+    /// or outside it.
+    fn landing(&self, p: &Photon) -> Option<Landing> {
         if !crate::estimate::photon_map::faces(p.normal(), self.plane.normal) {
-            return; // the plane's other side (see `orient_to_the_light`)
+            return None;
         }
-        let Some(cell) = self.plane.cell_of(p.pos(), f32::INFINITY) else {
-            return;
-        };
+        let cell = self.plane.cell_of(p.pos(), f32::INFINITY)?;
         let (gx, gy) = self.plane.grid_coords(p.pos());
         let w = self.levels[0].w;
         let d = [gx - ((cell % w) as f32 + 0.5), gy - ((cell / w) as f32 + 0.5)];
-        let t = &mut self.levels[0].texels[cell];
-        let f = p.power();
-        let lum = luminance(f);
-        t.flux_moment[0] += lum * d[0];
-        t.flux_moment[1] += lum * d[1];
-        t.flux[0] += f.x;
-        t.flux[1] += f.y;
-        t.flux[2] += f.z;
-        t.var += lum * lum;
-        t.count += 1.0;
+        Some(Landing {
+            cell: cell as u32,
+            d,
+            flux: p.power().to_array(),
+        })
+    }
+
+    /// Add landed photons to level 0, in their order.
+    fn add_landed(&mut self, landed: &[Landing]) {
+        let texels = &mut self.levels[0].texels;
+        for l in landed {
+            let t = &mut texels[l.cell as usize];
+            let f = Rgb::from_array(l.flux);
+            let lum = luminance(f);
+            t.flux_moment[0] += lum * l.d[0];
+            t.flux_moment[1] += lum * l.d[1];
+            t.flux[0] += f.x;
+            t.flux[1] += f.y;
+            t.flux[2] += f.z;
+            t.var += lum * lum;
+            t.count += 1.0;
+        }
+    }
+
+    /// Runs of [`COUNT_RUN_CELLS`] fine cells in level 0.
+    fn count_runs(&self) -> usize {
+        self.levels[0].texels.len().div_ceil(COUNT_RUN_CELLS)
     }
 
     /// Rebuild the coarser levels from level 0, up to one texel along the shorter side.
@@ -612,25 +646,63 @@ impl MultiscaleGrids {
     pub fn add(&mut self, photons: &[Photon], triangles: &[u32]) {
         let started = std::time::Instant::now();
         let (mut power, mut n) = ([0.0f64; LAYERS], [0usize; LAYERS]);
-        // Photon ids per plane and layer: each layer texture counts its own photons, in the
-        // order they were traced (deterministic), in parallel with the others (most photons
-        // land on one floor, so planes alone leave the cores idle).
-        let mut on_plane: Vec<Vec<u32>> = vec![Vec::new(); self.textures.len() * LAYERS];
-        for (i, (p, &t)) in photons.iter().zip(triangles).enumerate() {
+        for p in photons {
             let layer = layer_of(p.kind());
             power[layer] += luminance(p.power()) as f64;
             n[layer] += 1;
-            let plane = self.set.plane_of_triangle.get(t as usize).copied().unwrap_or(NO_PLANE);
-            if plane != NO_PLANE {
-                on_plane[plane as usize * LAYERS + layer].push(i as u32);
-            }
         }
-        let layers: Vec<&mut LayerTexture> = self.textures.iter_mut().flatten().collect();
-        layers.into_par_iter().zip(on_plane).for_each(|(tex, ids)| {
-            for i in ids {
-                tex.add_photon(&photons[i as usize]);
+        // Photons land all over the planes, whose texels can take hundreds of megabytes: a
+        // chunk of them is read in order (in parallel), its landings are sorted stably into
+        // runs of texels, and each texture adds its runs in order. Every texel still sums
+        // its photons in the order they were traced, so the result does not depend on this.
+        let mut run_base = vec![0usize];
+        for tex in self.textures.iter().flatten() {
+            run_base.push(run_base.last().copied().unwrap_or(0) + tex.count_runs());
+        }
+        let runs = run_base.last().copied().unwrap_or(0);
+        for (chunk, tris) in photons.chunks(COUNT_CHUNK).zip(triangles.chunks(COUNT_CHUNK)) {
+            let landed: Vec<(u32, Landing)> = chunk
+                .par_iter()
+                .zip(tris)
+                .with_min_len(1 << 12)
+                .filter_map(|(p, &t)| {
+                    let plane = self.set.plane_of_triangle.get(t as usize).copied().unwrap_or(NO_PLANE);
+                    let tex = self.textures.get(plane as usize)?;
+                    let layer = layer_of(p.kind());
+                    let l = tex[layer].landing(p)?;
+                    let run = run_base[plane as usize * LAYERS + layer] + l.cell as usize / COUNT_RUN_CELLS;
+                    Some((run as u32, l))
+                })
+                .collect();
+            let mut start = vec![0usize; runs + 1];
+            for (run, _) in &landed {
+                start[*run as usize + 1] += 1;
             }
-        });
+            for r in 0..runs {
+                start[r + 1] += start[r];
+            }
+            let bounds: Vec<usize> = run_base.iter().map(|&r| start[r]).collect();
+            let mut sorted = vec![Landing::default(); landed.len()];
+            for (run, l) in landed {
+                let slot = &mut start[run as usize];
+                sorted[*slot] = l;
+                *slot += 1;
+            }
+            let mut slices = Vec::with_capacity(bounds.len().saturating_sub(1));
+            let mut rest = sorted.as_slice();
+            for w in bounds.windows(2) {
+                let (head, tail) = rest.split_at(w[1] - w[0]);
+                slices.push(head);
+                rest = tail;
+            }
+            self.textures
+                .iter_mut()
+                .flatten()
+                .zip(slices)
+                .collect::<Vec<_>>()
+                .into_par_iter()
+                .for_each(|(tex, landed)| tex.add_landed(landed));
+        }
         self.passes += 1;
         for l in 0..LAYERS {
             // Running mean of the per-pass mean power.
