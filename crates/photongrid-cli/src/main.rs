@@ -194,7 +194,10 @@ struct RenderArgs {
     /// Write settings, phase seconds, photon counts and peak memory as JSON here.
     #[arg(long, value_name = "STATS.json", help_heading = "Input and output")]
     stats: Option<PathBuf>,
-    /// Write each plane's count texture before and after the wavelet step (EXR) into this folder.
+    /// Write each plane's textures (one-channel EXR) into this folder. Multiscale (the default), per
+    /// layer (caustic, indirect, direct): photons counted per fine cell, the irradiance final
+    /// gathering reads, and the reach (m) of the kernel the scale rule chose there — small where
+    /// the light changes fast. Adaptive: the count texture before and after the wavelet step.
     #[arg(long, value_name = "DIR", help_heading = "Input and output")]
     dump_grids: Option<PathBuf>,
     /// Write the image so far to the output (atomically) every this many seconds while passes
@@ -604,6 +607,9 @@ fn render(a: RenderArgs) -> Result<()> {
     if let (Some(dir), Some(g)) = (&a.dump_grids, grids.paper.as_ref().and_then(|g| g.planes.as_ref())) {
         dump_plane_grids(dir, g)?;
     }
+    if let (Some(dir), Some(g)) = (&a.dump_grids, grids.multiscale.as_ref()) {
+        dump_multiscale(dir, g)?;
+    }
     write_films(&a, &mut report, &outputs, &films, aovs)?;
     report.seconds.total = start.elapsed().as_secs_f64();
     report.cpu_seconds = pipeline::cpu_seconds();
@@ -641,6 +647,25 @@ fn dump_plane_grids(dir: &Path, g: &photongrid::grid::PlaneGrids) -> Result<()> 
     for (i, (raw, filtered)) in g.raw.iter().zip(&g.filtered).enumerate() {
         output::write_field_exr(&dir.join(format!("plane{i:03}_counts.exr")), raw)?;
         output::write_field_exr(&dir.join(format!("plane{i:03}_filtered.exr")), filtered)?;
+    }
+    Ok(())
+}
+
+/// `--dump-grids` with the multiscale estimate: per plane and layer, the photons per fine cell,
+/// and (when final gathering resolved them) the irradiance gather rays read and the reach of
+/// the kernel chosen at each of its texels.
+fn dump_multiscale(dir: &Path, g: &photongrid::grid::multiscale::MultiscaleGrids) -> Result<()> {
+    use photongrid::grid::multiscale::{CAUSTIC, DIRECT, INDIRECT};
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
+    for (i, tex) in g.textures.iter().enumerate() {
+        for (layer, name) in [(CAUSTIC, "caustic"), (INDIRECT, "indirect"), (DIRECT, "direct")] {
+            let t = &tex[layer];
+            output::write_field_exr(&dir.join(format!("plane{i:03}_{name}_counts.exr")), &t.count_field())?;
+            if let Some((irradiance, reach)) = t.resolved_fields() {
+                output::write_field_exr(&dir.join(format!("plane{i:03}_{name}_irradiance.exr")), &irradiance)?;
+                output::write_field_exr(&dir.join(format!("plane{i:03}_{name}_kernel_reach.exr")), &reach)?;
+            }
+        }
     }
     Ok(())
 }
@@ -1041,6 +1066,16 @@ fn info_one(path: &Path, json: bool) -> Result<serde_json::Value> {
         set.planes.len(),
         on_plane,
         scene.triangles.len()
+    );
+    let receivers = photongrid::grid::PlaneGrids::detect_receivers(&scene, Settings::default().grid_res);
+    outln!(
+        "  multiscale textures (--method multiscale, the default): {} planes (mirrors and glass excluded); \
+         each gets three (caustic, indirect and direct light) with fine cells sized from the first pass's photons \
+         (about --cell-photons photons per cell where that light is densest, 8 to 2048 cells along a side, within \
+         --grid-cells) and a pyramid of coarser kernels, from which each point takes the widest that agrees with \
+         every finer one; the sizes and the kernels chosen are known after the first pass: --stats (grids.choice) \
+         and --dump-grids. Surfaces on no plane use nested kNN discs of the photon map.",
+        receivers.planes.len()
     );
     let grids = photongrid::grid::Grids::build(&scene, &[], &[], &(&Settings::default()).into());
     outln!("  grids chosen by --grid auto (the default):");

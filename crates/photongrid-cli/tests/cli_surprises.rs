@@ -446,6 +446,74 @@ fn zero_photons_means_none_at_all() {
     assert!(img.data.iter().any(|p| p[0] > 0.0), "direct light still shows");
 }
 
+/// `--dump-grids` with the default (multiscale) estimate: per plane and layer the photons per
+/// fine cell and, with final gathering on, the irradiance gather rays read and the reach of
+/// the kernel chosen at each texel — narrow in the ring's bright caustic, wide where there is
+/// none;
+/// `--stats` says why each layer's cells have their size and which kernels were chosen.
+#[test]
+fn dump_grids_shows_the_multiscale_textures_and_the_kernels_chosen() {
+    let dir = TempDir::new("dump_grids");
+    let (out, grids, stats) = (dir.join("out.exr"), dir.join("grids"), dir.join("stats.json"));
+    let scene = sample("ring_caustic.glb");
+    let extra = [
+        "--photons",
+        "100000",
+        "--caustic-photons",
+        "200000",
+        "--dump-grids",
+        s(&grids),
+        "--stats",
+        s(&stats),
+    ];
+    ok(&run(&render_args(&scene, &out, &extra)));
+    let field = |name: &str| exr_channels(&grids.join(format!("plane000_caustic_{name}.exr")))["Y"].clone();
+    let (counts, irradiance, reach) = (field("counts"), field("irradiance"), field("kernel_reach"));
+    let report: Value = serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+    let stored = report["photons"]["caustic"].as_f64().unwrap();
+    let counted: f64 = counts.iter().map(|&c| c as f64).sum();
+    assert!(
+        counted > 0.5 * stored && counted <= stored,
+        "{counted} of {stored} caustic photons counted"
+    );
+    assert_eq!(irradiance.len(), reach.len());
+    let median = |mut v: Vec<f32>| {
+        v.sort_by(f32::total_cmp);
+        v[v.len() / 2]
+    };
+    // The bright caustic (a tenth of the peak irradiance and more) is resolved at least one
+    // pyramid level finer than where there is no caustic (four times finer in this run).
+    let bright = 0.1 * irradiance.iter().copied().fold(0.0f32, f32::max);
+    let lit: Vec<f32> = irradiance
+        .iter()
+        .zip(&reach)
+        .filter(|(&e, _)| e >= bright)
+        .map(|(_, &r)| r)
+        .collect();
+    let dark: Vec<f32> = irradiance
+        .iter()
+        .zip(&reach)
+        .filter(|(&e, &r)| e == 0.0 && r > 0.0)
+        .map(|(_, &r)| r)
+        .collect();
+    assert!(
+        lit.len() > 20 && dark.len() > 20,
+        "{} lit, {} dark texels",
+        lit.len(),
+        dark.len()
+    );
+    let (lit, dark) = (median(lit), median(dark));
+    assert!(
+        lit <= 0.5 * dark,
+        "kernels chosen in the bright caustic reach {lit} m, where there is none {dark} m"
+    );
+    let plane = report["grids"]["choice"][1].as_str().unwrap();
+    assert!(
+        plane.contains("caustic layer") && plane.contains("kernels chosen there reach") && plane.contains("cells of"),
+        "{plane}"
+    );
+}
+
 #[test]
 fn help_is_grouped_and_free_of_doc_syntax() {
     for args in [

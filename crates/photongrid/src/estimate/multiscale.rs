@@ -14,7 +14,7 @@
 use super::photon_map::Gather;
 use super::Query;
 use crate::grid::multiscale::{
-    LayerTexture, MultiscaleGrids, Resolved, ScaleEstimate, Texel, CAUSTIC, DIRECT, INDIRECT,
+    LayerTexture, MultiscaleGrids, Resolved, ScaleEstimate, Texel, CAUSTIC, DIRECT, INDIRECT, NO_LEVEL,
 };
 use crate::Rgb;
 use glam::Vec3;
@@ -256,18 +256,22 @@ impl MultiscaleGrids {
                         // Each texel's estimate is taken on its surface (at the centroid of
                         // the area it covers): a centre off a plane's edge would read a
                         // sliver of surface as a kernel and give every ray nearby its noise.
-                        let values = (0..w * h)
+                        let estimates: Vec<Option<LayerEstimate>> = (0..w * h)
                             .map(|i| {
                                 let (x, y) = t.texel_centroid(level, i)?;
                                 let p = t.plane.grid_to_world(x, y);
-                                self.layer_estimate(tex, l, p, gamma).map(|e| e.irradiance)
+                                self.layer_estimate(tex, l, p, gamma)
                             })
                             .collect();
                         Resolved {
                             side,
                             w,
                             h,
-                            values,
+                            values: estimates.iter().map(|e| e.map(|e| e.irradiance)).collect(),
+                            levels: estimates
+                                .iter()
+                                .map(|e| e.map_or(NO_LEVEL, |e| e.level.min(NO_LEVEL as usize - 1) as u8))
+                                .collect(),
                             outline: t.outline(level),
                         }
                     })

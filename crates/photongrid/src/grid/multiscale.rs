@@ -12,6 +12,7 @@
 //! chosen for one does not limit the other.
 
 use super::planes::{Plane, PlaneSet, NO_PLANE};
+use super::wavelet::Field2;
 use crate::photon::{Photon, PhotonKind};
 use crate::{luminance, Rgb};
 use glam::{Vec2, Vec3};
@@ -177,12 +178,39 @@ struct Landing {
     flux: [f32; 3],
 }
 
+/// Why a layer's fine cells have their size (`MultiscaleGrids::describe`, `--stats`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Sizing {
+    /// About `--cell-photons` first-pass photons per cell where the layer's photons on the
+    /// plane are densest (the 99th percentile of a 32 × 32 count).
+    Densest,
+    /// No first-pass photon of the layer on the plane: 16 cells along the longer side.
+    NoPhotons,
+    /// The densest photons asked for finer cells than the resolution cap.
+    Finest,
+    /// The photons asked for fewer than 8 cells along the longer side.
+    Coarsest,
+}
+
+impl Sizing {
+    fn describe(self) -> &'static str {
+        match self {
+            Sizing::Densest => "sized for --cell-photons photons per cell where this light is densest",
+            Sizing::NoPhotons => "no photons of this kind on the plane",
+            Sizing::Finest => "as fine as allowed (2048 cells along a side)",
+            Sizing::Coarsest => "as coarse as allowed (8 cells along the longer side)",
+        }
+    }
+}
+
 /// One layer of one plane: its fine grid (sized for that layer's photons) and the pyramid
 /// of block sums above it. Level 0 accumulates raw sums over passes.
 #[derive(Clone, Debug)]
 pub struct LayerTexture {
     /// The plane with this layer's fine resolution.
     pub plane: Plane,
+    /// Why the fine cells have their size.
+    pub sizing: Sizing,
     /// Level 0 (finest) upwards.
     levels: Vec<Level>,
     /// The layer's estimate resolved on a coarse texture for final-gather rays (set after
@@ -204,6 +232,9 @@ pub struct Resolved {
     pub h: usize,
     /// Irradiance per texel (row-major); None where no kernel covers surface.
     pub values: Vec<Option<Rgb>>,
+    /// The pyramid level the scale rule chose at each texel's centroid (row-major;
+    /// [`NO_LEVEL`] where none was chosen): where the light is resolved finely.
+    pub levels: Vec<u8>,
     /// Texels on or off the surface's outline (partly covered or empty, next to a texel
     /// without surface or to the grid's border, or with something standing within their
     /// reach). Interpolation there holds the value of the texel's centroid up to the edge,
@@ -212,6 +243,9 @@ pub struct Resolved {
     /// estimate at their own point.
     pub outline: Vec<bool>,
 }
+
+/// [`Resolved::levels`] where no scale was chosen.
+pub const NO_LEVEL: u8 = u8::MAX;
 
 impl Resolved {
     /// Whether fine grid coordinates `(gx, gy)` fall in an outline texel.
@@ -260,7 +294,7 @@ impl Resolved {
 }
 
 impl LayerTexture {
-    fn new(plane: Plane, coverage: Vec<Texel>) -> Self {
+    fn new(plane: Plane, sizing: Sizing, coverage: Vec<Texel>) -> Self {
         let level = Level {
             w: plane.res_u,
             h: plane.res_v,
@@ -268,9 +302,45 @@ impl LayerTexture {
         };
         LayerTexture {
             plane,
+            sizing,
             levels: vec![level],
             resolved: None,
         }
+    }
+
+    /// Photons counted per fine cell over all passes, for inspection (`--dump-grids`).
+    pub fn count_field(&self) -> Field2 {
+        let l = &self.levels[0];
+        Field2 {
+            width: l.w,
+            height: l.h,
+            data: l.texels.iter().map(|t| t.count).collect(),
+        }
+    }
+
+    /// Per texel of the resolved texture: the irradiance final gathering reads (luminance,
+    /// W/m²) and the reach of the kernel the scale rule chose there (m; 0 where none), for
+    /// inspection (`--dump-grids`). None before the texture is resolved.
+    pub fn resolved_fields(&self) -> Option<(Field2, Field2)> {
+        let r = self.resolved.as_ref()?;
+        let irradiance = r.values.iter().map(|v| v.map_or(0.0, luminance)).collect();
+        let reach = r
+            .levels
+            .iter()
+            .map(|&l| {
+                if l == NO_LEVEL {
+                    0.0
+                } else {
+                    self.kernel_reach(l as usize)
+                }
+            })
+            .collect();
+        let field = |data| Field2 {
+            width: r.w,
+            height: r.h,
+            data,
+        };
+        Some((field(irradiance), field(reach)))
     }
 
     /// Fine cell size (m).
@@ -473,6 +543,9 @@ pub struct MultiscaleGrids {
     pub mean_power: [f32; LAYERS],
     /// The farthest a kernel may reach from its point (m): scales stop below it.
     pub max_radius: f32,
+    /// The factor by which every fine cell grew to fit the cell budget (`--grid-cells`; 1
+    /// when the photons' sizes fit).
+    pub cells_grown: f32,
 }
 
 /// What the scene's geometry says about a point `p` of a plane with front normal `n`.
@@ -584,7 +657,7 @@ impl MultiscaleGrids {
         probes: &Probes<'_>,
     ) -> Self {
         orient_to_the_light(&mut set, photons, triangles);
-        let dims = fine_resolutions(&set, photons, triangles, params);
+        let (dims, cells_grown) = fine_resolutions(&set, photons, triangles, params);
         // Where photons land, nothing rests on the plane: they veto the buried test, whose
         // rays can be fooled by open or one-sided meshes.
         let mut landed: Vec<Vec<Vec3>> = vec![Vec::new(); set.planes.len()];
@@ -602,7 +675,7 @@ impl MultiscaleGrids {
             .zip(&landed)
             .map(|((p, layer_dims), landed)| {
                 std::array::from_fn(|l| {
-                    let (ru, rv) = layer_dims[l];
+                    let ((ru, rv), sizing) = layer_dims[l];
                     let plane = p.clone().with_resolution(ru, rv);
                     let mut area = coverage(&plane, tris);
                     let lit = lit_cells(&plane, landed);
@@ -618,7 +691,7 @@ impl MultiscaleGrids {
                     if l != CAUSTIC {
                         set_clearance(&plane, &mut area, probes.clearance);
                     }
-                    LayerTexture::new(plane, area)
+                    LayerTexture::new(plane, sizing, area)
                 })
             })
             .collect();
@@ -637,6 +710,7 @@ impl MultiscaleGrids {
             passes: 0,
             mean_power: [0.0; LAYERS],
             max_radius: params.max_radius,
+            cells_grown,
         };
         g.add(photons, triangles);
         g
@@ -760,17 +834,34 @@ impl MultiscaleGrids {
             .enumerate()
             .map(|(i, t)| {
                 let p = &t[0].plane;
+                let grown = if self.cells_grown > 1.0 {
+                    format!(", then {:.2}× wider to fit --grid-cells", self.cells_grown)
+                } else {
+                    String::new()
+                };
                 let layer = |l: &LayerTexture| {
                     let read = l
                         .resolved
                         .as_ref()
-                        .map(|r| format!(", gathering reads {}×{}", r.w, r.h))
+                        .map(|r| {
+                            let chosen = r.levels.iter().filter(|&&v| v != NO_LEVEL).map(|&v| v as usize);
+                            let reach = match (chosen.clone().min(), chosen.max()) {
+                                (Some(lo), Some(hi)) => format!(
+                                    ", kernels chosen there reach {:.1}–{:.1} mm",
+                                    l.kernel_reach(lo) * 1e3,
+                                    l.kernel_reach(hi) * 1e3
+                                ),
+                                _ => String::new(),
+                            };
+                            format!(", gathering reads {}×{}{reach}", r.w, r.h)
+                        })
                         .unwrap_or_default();
                     format!(
-                        "{}×{} cells of {:.1} mm{read}",
+                        "{}×{} cells of {:.1} mm ({}{grown}){read}",
                         l.plane.res_u,
                         l.plane.res_v,
-                        l.cell_size() * 1e3
+                        l.cell_size() * 1e3,
+                        l.sizing.describe()
                     )
                 };
                 let covered: f64 = t[INDIRECT].levels[0].texels.iter().map(|c| c.area as f64).sum();
@@ -793,16 +884,18 @@ impl MultiscaleGrids {
     }
 }
 
-/// Fine grid resolution per plane and layer: cells of about `photons_per_cell` photons where
-/// the layer's photons on the plane are densest (the 99th percentile of a coarse count),
-/// within the resolution cap and the overall cell budget. A layer with no photons on a plane
-/// gets 16 cells along the longer side.
+/// Fine grid resolution per plane and layer and why: cells of about `photons_per_cell`
+/// photons where the layer's photons on the plane are densest (the 99th percentile of a
+/// coarse count), within the resolution cap and the overall cell budget. A layer with no
+/// photons on a plane gets 16 cells along the longer side. Also returns the factor by which
+/// every cell grew to fit the budget (1 when it fits).
+#[allow(clippy::type_complexity)]
 fn fine_resolutions(
     set: &PlaneSet,
     photons: &[Photon],
     triangles: &[u32],
     params: &MultiscaleParams,
-) -> Vec<[(usize, usize); LAYERS]> {
+) -> (Vec<[((usize, usize), Sizing); LAYERS]>, f32) {
     const COARSE: usize = 32;
     let coarse: Vec<Plane> = set
         .planes
@@ -819,7 +912,7 @@ fn fine_resolutions(
             counts[plane as usize][layer_of(p.kind())][c] += 1;
         }
     }
-    let mut cell: Vec<[f32; LAYERS]> = coarse
+    let mut cell: Vec<[(f32, Sizing); LAYERS]> = coarse
         .iter()
         .zip(&counts)
         .map(|(p, layers)| {
@@ -832,12 +925,19 @@ fn fine_resolutions(
                     .copied()
                     .unwrap_or(0);
                 let density = dense as f32 / p.cell_area().max(1e-30);
-                let size = if density > 0.0 {
-                    (params.photons_per_cell / density).sqrt()
+                let (size, sizing) = if density > 0.0 {
+                    ((params.photons_per_cell / density).sqrt(), Sizing::Densest)
                 } else {
-                    longest / 16.0
+                    (longest / 16.0, Sizing::NoPhotons)
                 };
-                size.clamp(longest / params.max_resolution as f32, longest / 8.0)
+                let (finest, coarsest) = (longest / params.max_resolution as f32, longest / 8.0);
+                if size < finest {
+                    (finest, Sizing::Finest)
+                } else if size > coarsest {
+                    (coarsest, Sizing::Coarsest)
+                } else {
+                    (size, sizing)
+                }
             })
         })
         .collect();
@@ -848,24 +948,27 @@ fn fine_resolutions(
         .zip(&cell)
         .flat_map(|(p, c)| {
             c.iter()
-                .map(move |&c| ((p.size_u / c).ceil() * (p.size_v / c).ceil()) as f64)
+                .map(move |&(c, _)| ((p.size_u / c).ceil() * (p.size_v / c).ceil()) as f64)
         })
         .sum();
+    let mut grow = 1.0;
     if total > params.cell_budget as f64 {
-        let grow = (total / params.cell_budget as f64).sqrt() as f32;
-        cell.iter_mut().flatten().for_each(|c| *c *= grow);
+        grow = (total / params.cell_budget as f64).sqrt() as f32;
+        cell.iter_mut().flatten().for_each(|c| c.0 *= grow);
     }
-    set.planes
+    let dims = set
+        .planes
         .iter()
         .zip(&cell)
         .map(|(p, c)| {
             std::array::from_fn(|l| {
-                let ru = ((p.size_u / c[l]).ceil() as usize).clamp(1, params.max_resolution);
-                let rv = ((p.size_v / c[l]).ceil() as usize).clamp(1, params.max_resolution);
-                (ru, rv)
+                let ru = ((p.size_u / c[l].0).ceil() as usize).clamp(1, params.max_resolution);
+                let rv = ((p.size_v / c[l].0).ceil() as usize).clamp(1, params.max_resolution);
+                ((ru, rv), c[l].1)
             })
         })
-        .collect()
+        .collect();
+    (dims, grow)
 }
 
 /// Area of the plane's triangles inside each fine cell (m²) and its moments about the cell's
@@ -1060,6 +1163,58 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn each_layer_says_why_its_cells_have_their_size() {
+        let tris = square(2.0);
+        let set = detect_planes(&tris, &PlaneParams::default());
+        // 64 × 64 global photons on a lattice over the 4 m² square, no caustic photons: 4 per
+        // coarse (32 × 32) cell, 1024 per m², so 2 per cell makes cells of √(2/1024) m.
+        let photons: Vec<Photon> = (0..64 * 64)
+            .map(|i| {
+                let p = Vec3::new((i % 64) as f32 + 0.5, 0.0, (i / 64) as f32 + 0.5) / 32.0;
+                Photon::new(p, Rgb::ONE, Vec3::Y, Vec3::Y, PhotonKind::Indirect)
+            })
+            .collect();
+        let triangles = vec![0; photons.len()];
+        let probes = Probes {
+            buried: &|_, _| false,
+            clearance: &|_, _| f32::INFINITY,
+        };
+        let g = MultiscaleGrids::build(
+            set.clone(),
+            &tris,
+            &photons,
+            &triangles,
+            &MultiscaleParams::default(),
+            &probes,
+        );
+        let t = &g.textures[0];
+        assert_eq!(t[INDIRECT].sizing, Sizing::Densest);
+        assert_eq!(
+            t[INDIRECT].plane.res_u,
+            (2.0 / (2.0f32 / 1024.0).sqrt()).ceil() as usize
+        );
+        assert_eq!((t[CAUSTIC].sizing, t[CAUSTIC].plane.res_u), (Sizing::NoPhotons, 16));
+        assert_eq!(g.cells_grown, 1.0);
+        let line = &g.describe()[0];
+        assert!(
+            line.contains("where this light is densest") && line.contains("no photons of this kind"),
+            "{line}"
+        );
+        // A budget of 100 cells makes every cell wider, and the report says so.
+        let tight = MultiscaleParams {
+            cell_budget: 100,
+            ..MultiscaleParams::default()
+        };
+        let g = MultiscaleGrids::build(set, &tris, &photons, &triangles, &tight, &probes);
+        assert!(
+            g.cells_grown > 1.0 && g.textures[0][INDIRECT].plane.res_u < 46,
+            "{}",
+            g.cells_grown
+        );
+        assert!(g.describe()[0].contains("wider to fit --grid-cells"));
     }
 
     #[test]
