@@ -29,6 +29,13 @@ With Cycles variants (default on) it also renders, from the same .blend at 64 sp
   * for the dielectric, a pure Lambert sanity check (Specular IOR Level 0, roughness 1),
     compared with baseColor/pi * N.L * E: checks camera, units and normals of this comparison.
 Results go to refs/model_difference.json (and are quoted in README.md).
+
+With --ms (numpy only, no Cycles, ~1 min) it computes instead the same model with Cycles'
+multiple-scattering compensation (microfacet_ggx_preserve_energy: the lobe times
+1 + F_ms (1 - E(N.V)) / E(N.V), F_ms = F_avg E_avg / (1 - F_avg (1 - E_avg)), F_avg = f0 + (1 - f0)/21,
+E the F = 1 single-scattering albedo, here by brute-force integration), on the metal lobe (what
+photongrid renders: refs/<scene>_cam0.gltf_ms_model.exr for the metal sphere) and additionally on the dielectric's
+specular lobe, and compares them with Cycles: refs/model_difference_ms.json.
 """
 import argparse
 import json
@@ -75,8 +82,44 @@ def compare(img, ref, keep=None, blk=8):
 # ---------------------------------------------------------------------------------------------
 # glTF 2.0 Appendix B BRDF
 # ---------------------------------------------------------------------------------------------
-def gltf_brdf(n, v, l, base, metallic, roughness, f0_diel=0.04):
-    """n, v, l: (..., 3) unit vectors; base (3,); returns f (..., 3)."""
+def ggx_albedo(alpha, mus, nt=800, nphi=400):
+    """E(mu) = int D G2 / (4 mu) dw_i of single-scattering GGX (F = 1, height-correlated Smith),
+    brute force: midpoint rule in (theta_i, phi_i), phi over [0, pi] (symmetric)."""
+    a2 = alpha * alpha
+    th = (np.arange(nt) + 0.5) * (math.pi / 2 / nt)
+    ph = (np.arange(nphi) + 0.5) * (math.pi / nphi)
+    T, P = np.meshgrid(th, ph, indexing="ij")
+    i = np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], -1)
+    lam = lambda c: 0.5 * (-1 + np.sqrt(1 + a2 * (1 - c * c) / np.maximum(c * c, 1e-12)))
+    out = []
+    for mu in mus:
+        o = np.array([math.sqrt(max(1 - mu * mu, 0.0)), 0.0, mu])
+        h = i + o
+        h /= np.linalg.norm(h, axis=-1, keepdims=True)
+        D = a2 / (math.pi * (h[..., 2] ** 2 * (a2 - 1) + 1) ** 2)
+        G2 = 1 / (1 + lam(mu) + lam(i[..., 2]))
+        out.append(2 * np.sum(D * G2 / (4 * mu) * np.sin(T)) * (math.pi / 2 / nt) * (math.pi / nphi))
+    return np.array(out)
+
+
+def ms_compensation(alpha, nodes=96):
+    """Cycles' multiple-scattering factor as a function of (N.V, F_avg) for one alpha."""
+    mus = (np.arange(nodes) + 0.5) / nodes
+    E = ggx_albedo(alpha, mus)
+    E_avg = float(np.sum(2 * E * mus) / nodes)
+
+    def factor(nv, f0):
+        e = np.interp(np.clip(nv, 0, 1), mus, E)[..., None]
+        f_avg = f0 + (1 - f0) / 21
+        f_ms = f_avg * E_avg / (1 - f_avg * (1 - E_avg))
+        return 1 + f_ms * (1 - e) / e
+    factor.E_avg, factor.E_at_1 = E_avg, float(np.interp(1.0, mus, E))
+    return factor
+
+
+def gltf_brdf(n, v, l, base, metallic, roughness, f0_diel=0.04, ms=None, ms_dielectric=False):
+    """n, v, l: (..., 3) unit vectors; base (3,); returns f (..., 3). ms: ms_compensation(alpha)
+    for the metal lobe (and the dielectric's specular lobe with ms_dielectric)."""
     a = roughness ** 2
     a2 = a * a
     h = v + l
@@ -93,8 +136,13 @@ def gltf_brdf(n, v, l, base, metallic, roughness, f0_diel=0.04):
     spec = (Vis * D)[..., None]
     w = ((1 - np.abs(vh)) ** 5)[..., None]
     F_d = f0_diel + (1 - f0_diel) * w
-    dielectric = (1 - F_d) * base / math.pi + F_d * spec
-    metal = spec * (base + (1 - base) * w)
+    m_metal = m_diel = 1.0
+    if ms is not None:
+        m_metal = ms(anv, base)
+        if ms_dielectric:
+            m_diel = ms(anv, np.full(3, f0_diel))
+    dielectric = (1 - F_d) * base / math.pi + F_d * spec * m_diel
+    metal = spec * (base + (1 - base) * w) * m_metal
     return (1 - metallic) * dielectric + metallic * metal
 
 
@@ -110,7 +158,7 @@ def material_params(gm):
     return base, metallic, rough, f0
 
 
-def gltf_image(desc, base=None, metallic=None, rough=None, f0=None, lambert=False):
+def gltf_image(desc, base=None, metallic=None, rough=None, f0=None, lambert=False, ms=None, ms_dielectric=False):
     """Render the analytic sphere with the glTF BRDF for the exported camera and sun."""
     cam = desc["cameras"][0]
     w, h = desc["render"]["resolution"]
@@ -150,7 +198,7 @@ def gltf_image(desc, base=None, metallic=None, rough=None, f0=None, lambert=Fals
             if lambert:
                 f = np.broadcast_to(base / math.pi, n.shape)
             else:
-                f = gltf_brdf(n, v, l, base, metallic, rough, f0)
+                f = gltf_brdf(n, v, l, base, metallic, rough, f0, ms, ms_dielectric)
             rad = f * (np.clip(nl, 0, None) * E)[..., None] * col
             out += np.where(hit[..., None], rad, 0.0)
     return out / (SUB * SUB)
@@ -219,7 +267,10 @@ def main(argv):
     ap.add_argument("--work", default=os.path.join(HERE, "..", "..", "out", "materials", "model_diff"))
     ap.add_argument("--no-cycles-variants", action="store_true")
     ap.add_argument("--reuse", action="store_true", help="reuse the variant renders in --work if present")
+    ap.add_argument("--ms", action="store_true", help="the model with multiple-scattering compensation instead")
     a = ap.parse_args(argv)
+    if a.ms:
+        return main_ms(a)
     os.makedirs(a.work, exist_ok=True)
     result = {"_about": __doc__.split("\n\n")[1].strip(),
               "metrics": "mean_lum_ratio = glTF-model / Cycles; block_rel_rmse, rel_rmse: score.py definitions "
@@ -257,6 +308,39 @@ def main(argv):
         result[name] = r
         print(json.dumps({name: r}, indent=1), flush=True)
     with open(os.path.join(a.refs, "model_difference.json"), "w") as f:
+        json.dump(result, f, indent=1)
+
+
+def write_exr_half(path, rgb):
+    """render_refs.write_exr_half without importing bpy (half float RGB, ZIP)."""
+    import OpenEXR
+    rgb = np.asarray(rgb, dtype=np.float32)
+    chans = {c: rgb[..., i].astype(np.float16) for i, c in enumerate("RGB")}
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, chans).write(path)
+
+
+def main_ms(a):
+    result = {"_about": __doc__.split("\n\n")[-1].strip(),
+              "metrics": "as model_difference.json; 'sphere pixels' leaves out the background and silhouette"}
+    for name in ("mat_sphere_single", "mat_sphere_single_metal"):
+        desc = json.load(open(os.path.join(a.scenes_dir, name + ".scene.json")))
+        ref = read_exr(os.path.join(a.refs, name + "_cam0.exr"))
+        rough = material_params(desc["materials"][0]["gltf"])[2]
+        ms = ms_compensation(rough ** 2)
+        nl, nv = angle_maps(desc)
+        on = np.isfinite(nv)
+        r = {"alpha": rough ** 2, "E(1)": ms.E_at_1, "E_avg": ms.E_avg}
+        for key, kw in (("single scattering (glTF spec)", {}),
+                        ("metal compensated", {"ms": ms}),
+                        ("metal and dielectric specular compensated", {"ms": ms, "ms_dielectric": True})):
+            g = gltf_image(desc, **kw)
+            if key == "metal compensated" and material_params(desc["materials"][0]["gltf"])[1] > 0:
+                write_exr_half(os.path.join(a.refs, name + "_cam0.gltf_ms_model.exr"), g)
+            r[key] = {"whole image": compare(g, ref), "sphere pixels": compare(g, ref, on),
+                      "ratio_by_NdotV": binned_ratio(g, ref, nv, [0, 0.2, 0.4, 0.6, 0.8, 1.01])}
+        result[name] = r
+        print(json.dumps({name: r}, indent=1), flush=True)
+    with open(os.path.join(a.refs, "model_difference_ms.json"), "w") as f:
         json.dump(result, f, indent=1)
 
 

@@ -294,7 +294,7 @@ pub fn sample(scene: &Scene, d: Vec3, sp: &SurfacePoint, distance: f32, rng: &mu
         Surface::Gltf(m) => {
             let g = GltfPoint::at(scene, m, sp, d);
             let s = match part {
-                Part::All => g.sample_split(rng)?,
+                Part::All => g.adjoint().sample_split(rng)?,
                 Part::Traced | Part::Stored => {
                     let s = g.sample(g.mask(part), rng.uniform(), rng.uniform2())?;
                     Sampled {
@@ -335,7 +335,7 @@ pub fn gltf_photon_step(
     distance: f32,
     rng: &mut Rng,
 ) -> (bool, Option<Sampled>) {
-    let g = GltfPoint::at(scene, m, sp, d);
+    let g = GltfPoint::at(scene, m, sp, d).adjoint();
     let a = absorption(&scene.materials[sp.material as usize].surface, sp, distance);
     let s = g.sample_split(rng).map(|s| Sampled {
         weight: s.weight * a,
@@ -381,6 +381,13 @@ impl GltfPoint {
             inside: sp.backface && lobes.transmission > 0.0,
             wo,
         }
+    }
+
+    /// The same point on a photon path: `wo` points towards the light, and scattering follows
+    /// the adjoint BSDF (see [`Lobes::adjoint`]).
+    pub fn adjoint(mut self) -> Self {
+        self.lobes.adjoint = true;
+        self
     }
 
     /// The lobes of `part`.
@@ -525,6 +532,7 @@ pub fn lobes_at(scene: &Scene, m: &MetallicRoughness, uv: Vec2) -> Lobes {
         specular: specular.clamp(0.0, 1.0),
         transmission: transmission.clamp(0.0, 1.0),
         ior: m.ior,
+        adjoint: false,
     }
 }
 
