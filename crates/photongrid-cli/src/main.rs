@@ -604,11 +604,8 @@ fn render(a: RenderArgs) -> Result<()> {
         grids,
     } = pipeline::render(&request, &progress, checkpoint)?;
     report.seconds.load = load_seconds;
-    if let (Some(dir), Some(g)) = (&a.dump_grids, grids.paper.as_ref().and_then(|g| g.planes.as_ref())) {
-        dump_plane_grids(dir, g)?;
-    }
-    if let (Some(dir), Some(g)) = (&a.dump_grids, grids.multiscale.as_ref()) {
-        dump_multiscale(dir, g)?;
+    if let Some(dir) = &a.dump_grids {
+        dump_grids(dir, &grids)?;
     }
     write_films(&a, &mut report, &outputs, &films, aovs)?;
     report.seconds.total = start.elapsed().as_secs_f64();
@@ -637,6 +634,17 @@ fn check_outputs_before_load(a: &RenderArgs) -> Result<()> {
     }
     if let Some(dir) = &a.dump_grids {
         paths::prepare(&dir.join("plane000_counts.exr")).map_err(anyhow::Error::msg)?;
+    }
+    Ok(())
+}
+
+/// `--dump-grids`: the textures of the grids the estimate built.
+fn dump_grids(dir: &Path, grids: &photongrid::pipeline::GridState) -> Result<()> {
+    if let Some(g) = grids.paper.as_ref().and_then(|g| g.planes.as_ref()) {
+        dump_plane_grids(dir, g)?;
+    }
+    if let Some(g) = grids.multiscale.as_ref() {
+        dump_multiscale(dir, g)?;
     }
     Ok(())
 }
@@ -1055,6 +1063,12 @@ fn info_one(path: &Path, json: bool) -> Result<serde_json::Value> {
         "  caustics possible (glass or mirror present): {}",
         if scene.has_specular() { "yes" } else { "no" }
     );
+    info_grids(&scene);
+    Ok(serde_json::Value::Null)
+}
+
+/// `info`'s grids: the planes the adaptive method's grids and the multiscale textures get.
+fn info_grids(scene: &photongrid::scene::Scene) {
     let set = photongrid::grid::PlaneGrids::detect(&scene.triangles, Settings::default().grid_res);
     let on_plane = set
         .plane_of_triangle
@@ -1067,7 +1081,7 @@ fn info_one(path: &Path, json: bool) -> Result<serde_json::Value> {
         on_plane,
         scene.triangles.len()
     );
-    let receivers = photongrid::grid::PlaneGrids::detect_receivers(&scene, Settings::default().grid_res);
+    let receivers = photongrid::grid::PlaneGrids::detect_receivers(scene, Settings::default().grid_res);
     outln!(
         "  multiscale textures (--method multiscale, the default): {} planes (mirrors and glass excluded); \
          each gets three (caustic, indirect and direct light) with fine cells sized from the first pass's photons \
@@ -1077,7 +1091,7 @@ fn info_one(path: &Path, json: bool) -> Result<serde_json::Value> {
          and --dump-grids. Surfaces on no plane use nested kNN discs of the photon map.",
         receivers.planes.len()
     );
-    let grids = photongrid::grid::Grids::build(&scene, &[], &[], &(&Settings::default()).into());
+    let grids = photongrid::grid::Grids::build(scene, &[], &[], &(&Settings::default()).into());
     outln!("  grids chosen by --grid auto (the default):");
     for c in &grids.choice {
         outln!("    - {c}");
@@ -1094,7 +1108,6 @@ fn info_one(path: &Path, json: bool) -> Result<serde_json::Value> {
             p.cell_area() * 1e6
         );
     }
-    Ok(serde_json::Value::Null)
 }
 
 fn compare(image: &Path, reference: &Path, mask: Option<&Path>, block: usize, json: bool) -> Result<()> {
