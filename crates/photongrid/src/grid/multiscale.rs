@@ -1110,6 +1110,16 @@ mod tests {
         ]
     }
 
+    /// 64 × 64 indirect photons on a lattice over `square(2.0)`, one every 3.125 cm.
+    fn lattice_photons() -> Vec<Photon> {
+        (0..64 * 64)
+            .map(|i| {
+                let p = Vec3::new((i % 64) as f32 + 0.5, 0.0, (i / 64) as f32 + 0.5) / 32.0;
+                Photon::new(p, Rgb::ONE, Vec3::Y, Vec3::Y, PhotonKind::Indirect)
+            })
+            .collect()
+    }
+
     #[test]
     fn clipped_area_of_a_triangle() {
         let t = [Vec2::new(0.0, 0.0), Vec2::new(2.0, 0.0), Vec2::new(0.0, 2.0)];
@@ -1171,12 +1181,7 @@ mod tests {
         let set = detect_planes(&tris, &PlaneParams::default());
         // 64 × 64 global photons on a lattice over the 4 m² square, no caustic photons: 4 per
         // coarse (32 × 32) cell, 1024 per m², so 2 per cell makes cells of √(2/1024) m.
-        let photons: Vec<Photon> = (0..64 * 64)
-            .map(|i| {
-                let p = Vec3::new((i % 64) as f32 + 0.5, 0.0, (i / 64) as f32 + 0.5) / 32.0;
-                Photon::new(p, Rgb::ONE, Vec3::Y, Vec3::Y, PhotonKind::Indirect)
-            })
-            .collect();
+        let photons = lattice_photons();
         let triangles = vec![0; photons.len()];
         let probes = Probes {
             buried: &|_, _| false,
@@ -1224,12 +1229,7 @@ mod tests {
         let tris = square(2.0);
         let set = detect_planes(&tris, &PlaneParams::default());
         // Photons everywhere, so that the fine grid has many texels.
-        let photons: Vec<Photon> = (0..64 * 64)
-            .map(|i| {
-                let p = Vec3::new((i % 64) as f32 + 0.5, 0.0, (i / 64) as f32 + 0.5) / 32.0;
-                Photon::new(p, Rgb::ONE, Vec3::Y, Vec3::Y, PhotonKind::Indirect)
-            })
-            .collect();
+        let photons = lattice_photons();
         let probes = Probes {
             buried: &|_, _| false,
             clearance: &|p: Vec3, _| (p.x - 1.1).abs() * std::f32::consts::SQRT_2,
