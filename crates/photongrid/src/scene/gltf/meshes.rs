@@ -382,7 +382,14 @@ fn corner_normals(world_n: Option<&[Vec3]>, t: [u32; 3], ng: Vec3) -> [Vec3; 3] 
 
 /// One triangle's tangent frame from its positions and texture coordinates: at each corner the
 /// direction of increasing u, orthogonal to the corner's normal (flat normal where the file has
-/// none), with the handedness of v in w. None when the triangle or its UVs are degenerate.
+/// none), with the handedness in w. None when the triangle or its UVs are degenerate.
+///
+/// The bitangent `(N × T) · w` must point up the normal texture (its +Y, glTF 3.9.3), and glTF's
+/// v runs *down* the image (origin top left), so w is the sign of `(N × T) · (−∂P/∂v)`: an
+/// unmirrored mapping has w = +1, which is what Blender's exporter writes as TANGENT (checked
+/// on `bench/materials/mat_punctual` exported with tangents: w = +1 at every vertex) and what
+/// three.js gets by negating MikkTSpace's sign for glTF. Taking the sign along +v mirrored every
+/// normal map vertically (bumps lit from the wrong side).
 fn triangle_tangents(v: &Vertices, uvs: &[Vec2], t: &[u32; 3]) -> Option<[Vec4; 3]> {
     let p = [0, 1, 2].map(|k| v.positions.get(t[k] as usize).copied());
     let uv = [0, 1, 2].map(|k| uvs.get(t[k] as usize).copied());
@@ -414,7 +421,7 @@ fn triangle_tangents(v: &Vertices, uvs: &[Vec2], t: &[u32; 3]) -> Option<[Vec4; 
         if tn == Vec3::ZERO {
             return None;
         }
-        let w = if n.cross(tn).dot(bitangent) < 0.0 { -1.0 } else { 1.0 };
+        let w = if n.cross(tn).dot(-bitangent) < 0.0 { -1.0 } else { 1.0 };
         *o = tn.extend(w);
     }
     Some(out)
@@ -435,15 +442,19 @@ mod tangent_tests {
         (v, uvs)
     }
 
+    /// A quad mapped as Blender exports an unmirrored UV layout (u along +x, glTF v = 1 − v
+    /// growing down the image, so along −y): handedness +1, the bitangent N × T = +y pointing up
+    /// the image, as the TANGENT attribute Blender's exporter writes (w = +1).
     #[test]
-    fn tangent_follows_u_and_handedness_follows_v() {
-        let (v, uv) = quad(vec![Vec2::ZERO, Vec2::X, Vec2::Y]);
+    fn tangent_follows_u_and_handedness_points_up_the_image() {
+        let (v, uv) = quad(vec![Vec2::Y, Vec2::ONE, Vec2::ZERO]);
         let t = triangle_tangents(&v, &uv, &[0, 1, 2]).unwrap();
         for c in t {
             assert!((c.truncate() - Vec3::X).length() < 1e-6 && c.w == 1.0, "{c}");
         }
-        // v running the other way: the bitangent flips, so does w.
-        let (v, uv) = quad(vec![Vec2::ZERO, Vec2::X, -Vec2::Y]);
+        // v growing along +y instead (the image mirrored vertically): the bitangent flips, so
+        // does w.
+        let (v, uv) = quad(vec![Vec2::ZERO, Vec2::X, Vec2::Y]);
         let t = triangle_tangents(&v, &uv, &[0, 1, 2]).unwrap();
         assert!(t.iter().all(|c| c.w == -1.0));
         // u along y: the tangent is y.
