@@ -216,6 +216,7 @@ impl GridReport {
                 m.memory_bytes() as f64 / 1e6
             ));
             report.choice.extend(m.describe());
+            report.choice.extend(m.bright.as_ref().map(|b| b.describe()));
             report.memory_bytes += m.memory_bytes();
         }
         (state.paper.is_some() || state.multiscale.is_some()).then_some(report)
@@ -1109,6 +1110,7 @@ fn render_settings(camera: &Camera, settings: &Settings, pass: u32) -> RenderSet
         sequence_seed: settings.seed,
         first_sample: 0,
         gather: settings.effective_gather(),
+        gather_bright: settings.gather_bright,
     }
 }
 

@@ -127,6 +127,11 @@ pub struct Settings {
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Light paths", value_parser = parse_count, default_value_t = Settings::default().gather_stride))]
     #[serde(deserialize_with = "count::deserialize")]
     pub gather_stride: usize,
+    /// Share of the final-gather rays aimed at the brightest surfaces the multiscale grids
+    /// know (in proportion to the light they reflect) rather than spread over the hemisphere;
+    /// the two kinds are weighted by multiple importance sampling. 0: none
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Light paths", default_value_t = Settings::default().gather_bright))]
+    pub gather_bright: f32,
 
     /// Progressive rendering: at most this many passes, each tracing as many new photons and
     /// adding as many new camera samples per pixel as one pass (neither this nor a time budget:
@@ -274,6 +279,7 @@ impl Default for Settings {
             gather: 8,
             gather_neighbours: 64,
             gather_stride: 4,
+            gather_bright: 0.125,
             passes: None,
             time: None,
             memory_limit: None,
@@ -351,6 +357,12 @@ impl Settings {
             return Err(e(
                 "width",
                 &format!("× height = {w}×{h} pixels is too large (at most 2^28)"),
+            ));
+        }
+        if !(0.0..1.0).contains(&self.gather_bright) {
+            return Err(e(
+                "gather_bright",
+                "must be at least 0 and below 1 (some gather rays must cover the whole hemisphere)",
             ));
         }
         if !(self.max_radius > 0.0 && self.max_radius.is_finite()) {

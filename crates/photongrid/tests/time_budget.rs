@@ -123,6 +123,7 @@ fn a_camera_pass_past_its_deadline_keeps_its_required_sweeps_only() {
         sequence_seed: 1,
         first_sample: 0,
         gather: 2,
+        gather_bright: settings.gather_bright,
     };
     let camera = &scene.cameras[0];
     let past = Some(Instant::now() - Duration::from_millis(1));

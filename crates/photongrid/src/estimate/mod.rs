@@ -8,6 +8,7 @@
 //! variant built in [`Estimator::for_pass`], and its arm in [`Estimator::gather`]; the compiler
 //! lists every `match` to update.
 
+pub mod bright;
 pub mod density;
 pub mod irradiance;
 pub mod multiscale;
@@ -197,6 +198,15 @@ impl<'a> Estimator<'a> {
             | Estimator::Adaptive { map, .. }
             | Estimator::Multiscale { map, .. }
             | Estimator::Sppm { map, .. } => map,
+        }
+    }
+
+    /// The grids and their bright texels, for aiming final-gather rays (the multiscale
+    /// estimate, once its textures are resolved for gathering).
+    pub fn bright(&self) -> Option<(&'a MultiscaleGrids, &'a bright::BrightTexels)> {
+        match *self {
+            Estimator::Multiscale { grids: Some(g), .. } => g.bright.as_ref().map(|b| (g, b)),
+            _ => None,
         }
     }
 

@@ -283,6 +283,7 @@ impl MultiscaleGrids {
                 t.resolved = Some(r);
             }
         }
+        self.bright = super::bright::BrightTexels::build(self);
         tracing::debug!(
             seconds = started.elapsed().as_secs_f64(),
             "multiscale estimate resolved for gathering"

@@ -422,6 +422,11 @@ impl LayerTexture {
         ))
     }
 
+    /// The surface area (m²) within texel `i` of `level`.
+    pub fn texel_area(&self, level: usize, i: usize) -> f32 {
+        self.levels[level].texels[i].area
+    }
+
     /// Kernel sums at `p` on every level, finest first.
     pub fn scales(&self, p: Vec3) -> impl Iterator<Item = ScaleEstimate> + '_ {
         let (gx, gy) = self.plane.grid_coords(p);
@@ -541,11 +546,19 @@ pub struct MultiscaleGrids {
     /// Mean photon power (luminance) per layer over the photons counted, per pass: the
     /// variance floor of an empty kernel (one photon's worth of uncertainty).
     pub mean_power: [f32; LAYERS],
+    /// Share of the global photons' power (direct and indirect layers) that lands on the
+    /// planes, over all passes: how much of the light gathering finds the planes hold.
+    pub plane_power_share: f32,
+    /// The global photons' power (luminance) over all passes, on the planes or not.
+    global_power: f64,
     /// The farthest a kernel may reach from its point (m): scales stop below it.
     pub max_radius: f32,
     /// The factor by which every fine cell grew to fit the cell budget (`--grid-cells`; 1
     /// when the photons' sizes fit).
     pub cells_grown: f32,
+    /// The resolved texels as a distribution for aiming gather rays (built with the resolved
+    /// textures, [`MultiscaleGrids::resolve_for_gathering`]).
+    pub bright: Option<crate::estimate::bright::BrightTexels>,
 }
 
 /// What the scene's geometry says about a point `p` of a plane with front normal `n`.
@@ -709,8 +722,11 @@ impl MultiscaleGrids {
             textures,
             passes: 0,
             mean_power: [0.0; LAYERS],
+            plane_power_share: 0.0,
+            global_power: 0.0,
             max_radius: params.max_radius,
             cells_grown,
+            bright: None,
         };
         g.add(photons, triangles);
         g
@@ -725,6 +741,29 @@ impl MultiscaleGrids {
             power[layer] += luminance(p.power()) as f64;
             n[layer] += 1;
         }
+        self.count(photons, triangles);
+        self.passes += 1;
+        self.update_plane_share(power[DIRECT] + power[INDIRECT]);
+        for l in 0..LAYERS {
+            // Running mean of the per-pass mean power.
+            let mean = if n[l] > 0 { (power[l] / n[l] as f64) as f32 } else { 0.0 };
+            self.mean_power[l] += (mean - self.mean_power[l]) / self.passes as f32;
+        }
+        let counted = started.elapsed().as_secs_f64();
+        self.textures
+            .par_iter_mut()
+            .flat_map(|t| t.par_iter_mut())
+            .for_each(LayerTexture::rebuild);
+        tracing::debug!(
+            counted,
+            seconds = started.elapsed().as_secs_f64(),
+            photons = photons.len(),
+            "multiscale photons counted and pyramids rebuilt"
+        );
+    }
+
+    /// Count one pass's photons into level 0 of the textures.
+    fn count(&mut self, photons: &[Photon], triangles: &[u32]) {
         // Photons land all over the planes, whose texels can take hundreds of megabytes: a
         // chunk of them is read in order (in parallel), its landings are sorted stably into
         // runs of texels, and each texture adds its runs in order. Every texel still sums
@@ -777,23 +816,29 @@ impl MultiscaleGrids {
                 .into_par_iter()
                 .for_each(|(tex, landed)| tex.add_landed(landed));
         }
-        self.passes += 1;
-        for l in 0..LAYERS {
-            // Running mean of the per-pass mean power.
-            let mean = if n[l] > 0 { (power[l] / n[l] as f64) as f32 } else { 0.0 };
-            self.mean_power[l] += (mean - self.mean_power[l]) / self.passes as f32;
-        }
-        let counted = started.elapsed().as_secs_f64();
-        self.textures
-            .par_iter_mut()
-            .flat_map(|t| t.par_iter_mut())
-            .for_each(LayerTexture::rebuild);
-        tracing::debug!(
-            counted,
-            seconds = started.elapsed().as_secs_f64(),
-            photons = photons.len(),
-            "multiscale photons counted and pyramids rebuilt"
-        );
+    }
+
+    /// Add a pass's global photon power (luminance, on the planes or not) and update
+    /// [`MultiscaleGrids::plane_power_share`] from what the textures hold.
+    fn update_plane_share(&mut self, global_power: f64) {
+        self.global_power += global_power;
+        let on_planes: f64 = self
+            .textures
+            .par_iter()
+            .flat_map(|t| [&t[DIRECT], &t[INDIRECT]])
+            .map(|t| {
+                t.levels[0]
+                    .texels
+                    .iter()
+                    .map(|x| luminance(Rgb::from(x.flux)) as f64)
+                    .sum::<f64>()
+            })
+            .sum();
+        self.plane_power_share = if self.global_power > 0.0 {
+            (on_planes / self.global_power).min(1.0) as f32
+        } else {
+            0.0
+        };
     }
 
     /// The layer textures serving `triangle`, if any.
@@ -809,6 +854,13 @@ impl MultiscaleGrids {
     pub fn texture_facing(&self, triangle: u32, normal: Vec3) -> Option<&[LayerTexture; LAYERS]> {
         self.texture_of(triangle)
             .filter(|t| crate::estimate::photon_map::faces(normal, t[0].plane.normal))
+    }
+
+    /// The plane serving the side of `triangle` that `normal` faces, if any
+    /// ([`MultiscaleGrids::texture_facing`]).
+    pub fn plane_facing(&self, triangle: u32, normal: Vec3) -> Option<usize> {
+        self.texture_facing(triangle, normal)?;
+        self.set.plane_of_triangle.get(triangle as usize).map(|&p| p as usize)
     }
 
     /// Photons of `layer` the planes have counted, over all passes.

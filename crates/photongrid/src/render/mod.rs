@@ -3,9 +3,11 @@
 
 use crate::accel::Accel;
 use crate::bsdf;
+use crate::estimate::bright::{Aim, BrightSample};
 use crate::estimate::density::{density_radiance, photon_density};
 use crate::estimate::{Estimator, IrradianceCache, Query};
 use crate::film::{Aov, Film};
+use crate::grid::multiscale::MultiscaleGrids;
 use crate::sampling::{self, stream, Rng};
 use crate::scene::{Camera, Scene, Surface};
 use crate::settings::DirectLighting;
@@ -15,6 +17,7 @@ use crate::Rgb;
 use emitter_edges::EmitterEdges;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
+use std::f32::consts::PI;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
@@ -51,10 +54,27 @@ pub struct RenderSettings {
     pub first_sample: u32,
     /// Final-gather rays per camera sample (0: none).
     pub gather: u32,
+    /// Share of them aimed at bright surfaces ([`crate::estimate::bright`]).
+    pub gather_bright: f32,
 }
 
 /// Mirror and glass bounces a final-gather ray follows.
 const MAX_GATHER_DEPTH: u32 = 4;
+
+/// How far (a share of the distance) an aimed gather ray may end from the point aimed at and
+/// still count as reaching it (it lands on the plane's triangles, not on the sampled point).
+const AIM_TOLERANCE: f32 = 1e-3;
+
+/// A density per unit area at a point `t` away along `d`, where the surface has normal `n`,
+/// as a density per unit solid angle.
+fn solid_angle_pdf(pdf_area: f32, t: f32, d: Vec3, n: Vec3) -> f32 {
+    let cos = d.dot(n).abs();
+    if cos > 0.0 {
+        pdf_area * t * t / cos
+    } else {
+        0.0
+    }
+}
 
 /// Per-thread state of the camera pass.
 struct Tracer<'a> {
@@ -67,6 +87,8 @@ struct Tracer<'a> {
     mis: Option<gltf::MisRay>,
     /// The camera ray's own emission is estimated apart ([`emitter_edges`]): leave it out.
     skip_seen_emission: bool,
+    /// How the gathering point in hand chooses among bright planes (kept to reuse its memory).
+    aim: Aim,
 }
 
 impl<'a> Tracer<'a> {
@@ -79,6 +101,7 @@ impl<'a> Tracer<'a> {
             knn: KnnBuffer::default(),
             mis: None,
             skip_seen_emission: false,
+            aim: Aim::default(),
         }
     }
 }
@@ -324,20 +347,103 @@ impl Tracer<'_> {
         l
     }
 
-    /// Mean radiance arriving over the hemisphere from other surfaces (cosine-weighted
-    /// directions, so indirect radiance = albedo × this mean), read from precomputed irradiance
-    /// at the first diffuse surface each gather ray reaches through mirrors and glass.
+    /// Mean radiance arriving over the hemisphere from other surfaces (cosine-weighted, so
+    /// indirect radiance = albedo × this mean), read from precomputed irradiance at the first
+    /// diffuse surface each gather ray reaches through mirrors and glass. Some rays
+    /// ([`RenderSettings::gather_bright`]) are aimed at bright texels of the planes
+    /// ([`crate::estimate::bright`]); every ray is weighted by the balance heuristic over both
+    /// kinds, whose denominators count the rays (no division by their number after).
     fn final_gather(&mut self, sp: &SurfacePoint, rng: &mut Rng) -> Rgb {
         let n = self.settings.gather;
+        let bright = self.photons.estimator.bright();
+        let mut aim = std::mem::take(&mut self.aim);
+        let aimed = match bright {
+            Some((_, texels)) if n > 1 => {
+                texels.aim(sp.position, sp.facing_shading_normal, &mut aim);
+                if aim.any() {
+                    texels.aimed_rays(n, self.settings.gather_bright)
+                } else {
+                    0
+                }
+            }
+            _ => 0,
+        };
+        let spread = n - aimed;
+        let weight = |cos: f32, pdf_aimed: f32| cos / (spread as f32 * cos + aimed as f32 * PI * pdf_aimed);
         let mut sum = Rgb::ZERO;
-        for _ in 0..n {
+        for _ in 0..spread {
             let d = sampling::cosine_hemisphere(rng.uniform2(), sp.facing_shading_normal);
             if d.dot(sp.facing_normal) <= 0.0 {
                 continue;
             }
-            sum += self.gather_ray(sp.offset(d), d, 0, rng);
+            let (l, pdf_aimed) = self.gather_ray_first(sp.offset(d), d, (aimed > 0).then_some(&aim), rng);
+            sum += l * weight(d.dot(sp.facing_shading_normal), pdf_aimed);
         }
-        sum / n as f32
+        if let Some((grids, texels)) = bright {
+            for _ in 0..aimed {
+                let Some(s) = texels.sample(&aim, rng.uniform(), rng.uniform2()) else {
+                    break;
+                };
+                if let Some((l, cos, pdf)) = self.aimed_ray(sp, &s, grids) {
+                    sum += l * weight(cos, pdf);
+                }
+            }
+        }
+        self.aim = aim;
+        sum
+    }
+
+    /// A cosine-distributed gather ray: the radiance it brings and, where it lands on a
+    /// Lambert surface of a plane and some rays are aimed (from where `aim` was made), the
+    /// solid-angle density with which an aimed ray picks that point (0 elsewhere: aimed rays
+    /// never bring light from there).
+    fn gather_ray_first(&mut self, o: Vec3, d: Vec3, aim: Option<&Aim>, rng: &mut Rng) -> (Rgb, f32) {
+        let Some(hit) = self.accel.intersect(o, d, f32::INFINITY) else {
+            return (Rgb::ZERO, 0.0);
+        };
+        let sp = SurfacePoint::new(self.scene, o, d, hit);
+        if !matches!(
+            self.scene.materials[sp.material as usize].surface,
+            Surface::Lambert { .. }
+        ) {
+            return (self.gather_at(&sp, d, hit.t, 0, rng), 0.0);
+        }
+        let l = bsdf::lambert(sp.albedo(self.scene)) * self.gathered_irradiance(&sp);
+        let pdf = match (self.photons.estimator.bright(), aim) {
+            (Some((grids, texels)), Some(aim)) => grids.plane_facing(sp.triangle, sp.facing_normal).map_or(0.0, |k| {
+                solid_angle_pdf(texels.pdf_area(aim, k, sp.position), hit.t, d, sp.facing_normal)
+            }),
+            _ => 0.0,
+        };
+        (l, pdf)
+    }
+
+    /// An aimed gather ray towards `s`: the radiance it brings, the cosine at `sp` and the
+    /// solid-angle density of the aim; None where the point is behind `sp`, faces away,
+    /// is hidden, or is not a Lambert surface of that plane (cosine-distributed rays bring
+    /// the light of all those).
+    fn aimed_ray(&mut self, sp: &SurfacePoint, s: &BrightSample, grids: &MultiscaleGrids) -> Option<(Rgb, f32, f32)> {
+        let to = s.point - sp.position;
+        let dist = to.length();
+        let d = to / dist;
+        let cos = d.dot(sp.facing_shading_normal);
+        if !(cos > 0.0 && d.dot(sp.facing_normal) > 0.0 && -d.dot(s.normal) > 0.0) {
+            return None;
+        }
+        let o = sp.offset(d);
+        let hit = self.accel.intersect(o, d, f32::INFINITY)?;
+        let z = SurfacePoint::new(self.scene, o, d, hit);
+        let lambert = matches!(
+            self.scene.materials[z.material as usize].surface,
+            Surface::Lambert { .. }
+        );
+        // The ray must end at the point aimed at, on its plane: short of it, something hides it.
+        let there = (hit.t - dist).abs() <= AIM_TOLERANCE * dist + 4.0 * z.eps;
+        if !lambert || !there || grids.plane_facing(z.triangle, z.facing_normal) != Some(s.plane) {
+            return None;
+        }
+        let l = bsdf::lambert(z.albedo(self.scene)) * self.gathered_irradiance(&z);
+        Some((l, cos, solid_angle_pdf(s.pdf_area, hit.t, d, s.normal)))
     }
 
     /// Radiance leaving the first diffuse surface along a gather ray, emission excluded (direct
@@ -347,17 +453,22 @@ impl Tracer<'_> {
             return Rgb::ZERO;
         };
         let sp = SurfacePoint::new(self.scene, o, d, hit);
+        self.gather_at(&sp, d, hit.t, depth, rng)
+    }
+
+    /// Radiance leaving `sp`, where a gather ray along `d` landed after `t`.
+    fn gather_at(&mut self, sp: &SurfacePoint, d: Vec3, t: f32, depth: u32, rng: &mut Rng) -> Rgb {
         let surface = &self.scene.materials[sp.material as usize].surface;
         if let Surface::Lambert { .. } = surface {
-            return bsdf::lambert(sp.albedo(self.scene)) * self.gathered_irradiance(&sp);
+            return bsdf::lambert(sp.albedo(self.scene)) * self.gathered_irradiance(sp);
         }
         if let Surface::Gltf(m) = surface {
-            return self.gather_gltf(m, &sp, (d, hit.t, depth), rng);
+            return self.gather_gltf(m, sp, (d, t, depth), rng);
         }
         if depth >= MAX_GATHER_DEPTH {
             return Rgb::ZERO;
         }
-        match bsdf::sample_specular(surface, d, &sp, hit.t, rng) {
+        match bsdf::sample_specular(surface, d, sp, t, rng) {
             Some(s) => s.weight * self.gather_ray(sp.offset(s.direction), s.direction, depth + 1, rng),
             None => Rgb::ZERO,
         }
