@@ -5,7 +5,8 @@
 //! Follows Morten Mikkelsen's reference implementation (mikktspace.c, `genTangSpaceDefault`):
 //!
 //! * per triangle, the direction of increasing u (and of v) from positions and TEXCOORD_0
-//!   (its equations 18 and 19); the triangle's orientation is the sign of its signed uv area;
+//!   (its equations 18 and 19); the triangle's orientation is the sign of its signed uv area,
+//!   taken with v reversed (below);
 //! * per corner, that direction projected onto the corner's normal and normalised *before* it is
 //!   averaged, weighted by the corner's angle measured in the normal's plane;
 //! * summed over all corners that share a vertex and have the same orientation, a vertex being
@@ -18,6 +19,13 @@
 //!   as w · n × t, so the reference's bitangent and magnitudes are not kept;
 //! * triangles whose uv area or derivatives are zero contribute nothing (the reference's
 //!   `GROUP_WITH_ANY`) and take the averaged tangents at their vertices.
+//!
+//! The uvs are those Blender runs MikkTSpace on: its v (= 1 − glTF's v, the exporter's flip)
+//! runs up the image, as a normal map's +Y (green) does, where glTF's v runs down. Reversing v
+//! leaves the tangent as it is and reverses the orientation, so w is the handedness Cycles
+//! shades with and the one Blender's exporter writes into a TANGENT attribute (its
+//! `bitangent_sign`, unchanged), which [`super::meshes`] keeps as it is: both agree. The other
+//! choice (glTF's v) mirrors every normal map's green channel.
 //!
 //! Left out or simplified:
 //!
@@ -72,7 +80,7 @@ struct Face {
     os: Vec3,
     /// The flat normal; zero for a zero-area triangle.
     flat: Vec3,
-    /// Signed uv area > 0 (MikkTSpace's `ORIENT_PRESERVING`).
+    /// Signed uv area > 0, v reversed (MikkTSpace's `ORIENT_PRESERVING` on Blender's uvs).
     preserving: bool,
     /// Contributes to its vertices' groups (nonzero uv and position area, valid corners).
     good: bool,
@@ -123,7 +131,8 @@ fn face(mesh: &Mesh, t: &[u32; 3]) -> Face {
         return bad;
     };
     let (e1, e2) = (p1 - p0, p2 - p0);
-    let (d1, d2) = (t1 - t0, t2 - t0);
+    // Blender's uvs: v reversed (see the module's documentation).
+    let (d1, d2) = ((t1 - t0) * Vec2::new(1.0, -1.0), (t2 - t0) * Vec2::new(1.0, -1.0));
     let area = d1.x * d2.y - d1.y * d2.x;
     let flat = e1.cross(e2).normalize_or_zero();
     // Equations 18 and 19, before the division by the uv area (whose sign is the orientation).
@@ -436,23 +445,25 @@ mod tests {
         ];
         let n = [Vec3::Z; 4];
         let tris = [[0, 1, 2], [0, 2, 3]];
-        // A rotated, stretched mapping, and the same with v mirrored (handedness −1).
+        // A rotated, stretched mapping with glTF's v running down the image as y goes up (as
+        // Blender exports an unmirrored one: handedness +1), and the same mirrored (−1).
         for flip in [1.0, -1.0] {
             let uv: Vec<Vec2> = p
                 .iter()
-                .map(|q| Vec2::new(0.3 * q.x + 0.2 * q.y, flip * (0.5 * q.y - 0.1 * q.x)))
+                .map(|q| Vec2::new(0.3 * q.x + 0.2 * q.y, 1.0 - flip * (0.5 * q.y - 0.1 * q.x)))
                 .collect();
             let g = run(&p, Some(&n), &uv, &tris);
             for (f, &t) in tris.iter().enumerate() {
                 let old = per_triangle_rule(&p, &n, &uv, t).unwrap();
                 for k in 0..3 {
+                    let new = g.tangents[f][k];
                     assert!(
-                        (g.tangents[f][k] - old[k]).length() < 1e-6,
-                        "{} vs {}",
-                        g.tangents[f][k],
+                        (new.truncate() - old[k].truncate()).length() < 1e-6,
+                        "{new} vs {}",
                         old[k]
                     );
-                    assert_eq!(g.tangents[f][k].w, flip);
+                    // The old rule's handedness took v down the image (see the module's doc).
+                    assert_eq!((new.w, old[k].w), (flip, -flip));
                 }
             }
         }
@@ -460,13 +471,13 @@ mod tests {
 
     #[test]
     fn mirrored_uvs_keep_two_handedness_groups() {
-        // A strip x ∈ [−1, 1] whose left half maps u = −x (mirrored), right half u = x; the
-        // three vertices at x = 0 are shared by both halves.
+        // A strip x ∈ [−1, 1] whose left half maps u = −x (mirrored), right half u = x, v down
+        // the image; the two vertices at x = 0 are shared by both halves.
         let p: Vec<Vec3> = (0..6)
             .map(|i| Vec3::new((i % 3) as f32 - 1.0, (i / 3) as f32, 0.0))
             .collect();
         let n = vec![Vec3::Z; 6];
-        let uv: Vec<Vec2> = p.iter().map(|q| Vec2::new(q.x.abs(), q.y)).collect();
+        let uv: Vec<Vec2> = p.iter().map(|q| Vec2::new(q.x.abs(), 1.0 - q.y)).collect();
         let tris = [[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4]];
         let g = run(&p, Some(&n), &uv, &tris);
         for (f, ts) in g.tangents.iter().enumerate() {
@@ -476,17 +487,33 @@ mod tests {
                 assert!((t.truncate() - dir).length() < 1e-6 && t.w == w, "triangle {f}: {t}");
             }
         }
-        // The same as today's rule (no averaging across the mirror seam).
+        // The old rule's tangents (no averaging across the mirror seam), its handedness reversed.
         for (f, &t) in tris.iter().enumerate() {
             let old = per_triangle_rule(&p, &n, &uv, t).unwrap();
             for k in 0..3 {
+                let new = g.tangents[f][k];
                 assert!(
-                    (g.tangents[f][k] - old[k]).length() < 1e-6,
-                    "{} vs {}",
-                    g.tangents[f][k],
+                    (new - old[k] * Vec4::new(1.0, 1.0, 1.0, -1.0)).length() < 1e-6,
+                    "{new} vs {}",
                     old[k]
                 );
             }
+        }
+    }
+
+    #[test]
+    fn bitangent_points_up_the_image_as_a_normal_maps_green() {
+        // A quad facing +z mapped as Blender exports an image seen the right way up: u along
+        // +x, glTF's v running down the image, so up the image is +y.
+        let p = [Vec3::ZERO, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y];
+        let n = [Vec3::Z; 4];
+        let uv: Vec<Vec2> = p.iter().map(|q| Vec2::new(q.x, 1.0 - q.y)).collect();
+        let g = run(&p, Some(&n), &uv, &[[0, 1, 2], [0, 2, 3]]);
+        for t in g.tangents.iter().flatten() {
+            // Cycles' Normal Map node and the renderer: bitangent = w · n × t, the map's +Y.
+            let bitangent = Vec3::Z.cross(t.truncate()) * t.w;
+            assert!((t.truncate() - Vec3::X).length() < 1e-6, "{t}");
+            assert!((bitangent - Vec3::Y).length() < 1e-6, "{t}");
         }
     }
 
@@ -503,9 +530,8 @@ mod tests {
             Vec3::new(5.0, 1.0, 0.0),
         ];
         let n = vec![Vec3::Z; p.len()];
-        let mut uv: Vec<Vec2> = p.iter().map(|q| q.truncate()).collect();
-        // Vertex 4 shares its uv with vertex 1: triangle [1, 4, 2] has a zero uv area only if
-        // its three uvs are collinear, so put 4 on the line from 1 to 2.
+        let mut uv: Vec<Vec2> = p.iter().map(|q| Vec2::new(q.x, 1.0 - q.y)).collect();
+        // Triangle [1, 4, 2] gets a zero uv area: vertex 4's uv on the line from 1's to 2's.
         uv[4] = Vec2::new(1.0, 0.5);
         // An isolated triangle with all uvs equal: nothing to take from, the normal's frame.
         uv[5] = Vec2::splat(0.25);
