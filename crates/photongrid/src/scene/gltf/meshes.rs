@@ -2,6 +2,7 @@
 //! [`Triangle`]s; cameras and punctual lights are collected on the way.
 
 use super::lights::{light_of, PunctualKind};
+use super::tangents;
 use super::{Inputs, LoadError, Loader, MAX_COORDINATE};
 use crate::scene::{Camera, Material, Triangle};
 use glam::{Mat3, Mat4, Vec2, Vec3, Vec4};
@@ -215,10 +216,9 @@ impl Loader<'_> {
     }
 
     /// Tangents at the corners of each triangle of `tris` (object space, handedness in w): the
-    /// file's TANGENT attribute if it has one, else each triangle's own from its positions and
-    /// TEXCOORD_0 (the direction of increasing u, as MikkTSpace, but not averaged over shared
-    /// vertices), orthogonalised against each corner's normal. The MikkTSpace crate was tried
-    /// and panics on degenerate meshes the fuzzer generates.
+    /// file's TANGENT attribute if it has one, else MikkTSpace's from positions, normals and
+    /// TEXCOORD_0 ([`super::tangents`]; written here because the MikkTSpace crate was tried and
+    /// panics on degenerate meshes the fuzzer generates).
     fn tangents(&mut self, v: &Vertices, tris: &[[u32; 3]], element: &str) -> Vec<[Vec4; 3]> {
         if let Some(ts) = &v.tangents {
             return tris
@@ -232,23 +232,19 @@ impl Loader<'_> {
             ));
             return vec![[Vec4::ZERO; 3]; tris.len()];
         };
-        let mut degenerate = 0usize;
-        let out: Vec<[Vec4; 3]> = tris
-            .iter()
-            .map(|t| {
-                let frame = triangle_tangents(v, uvs, t);
-                if frame.is_none() {
-                    degenerate += 1;
-                }
-                frame.unwrap_or([Vec4::ZERO; 3])
-            })
-            .collect();
-        if degenerate > 0 {
-            self.report.ignored.push(format!(
-                "{element}: normal map ignored on {degenerate} triangles whose positions or TEXCOORD_0 are degenerate"
+        let generated = tangents::generate(&tangents::Mesh {
+            positions: &v.positions,
+            normals: v.normals.as_deref(),
+            uvs,
+            tris,
+        });
+        if generated.from_neighbours > 0 {
+            self.report.approximated.push(format!(
+                "{element}: normal map on {} triangles whose positions or TEXCOORD_0 are degenerate: tangents taken from the neighbouring triangles ({} with a corner that has none: from the normal alone)",
+                generated.from_neighbours, generated.from_normal
             ));
         }
-        out
+        generated.tangents
     }
 
     /// Triangles of a list, strip or fan.
@@ -377,100 +373,5 @@ fn corner_normals(world_n: Option<&[Vec3]>, t: [u32; 3], ng: Vec3) -> [Vec3; 3] 
             }
         }),
         None => [ng; 3],
-    }
-}
-
-/// One triangle's tangent frame from its positions and texture coordinates: at each corner the
-/// direction of increasing u, orthogonal to the corner's normal (flat normal where the file has
-/// none), with the handedness in w. None when the triangle or its UVs are degenerate.
-///
-/// The bitangent `(N × T) · w` must point up the normal texture (its +Y, glTF 3.9.3), and glTF's
-/// v runs *down* the image (origin top left), so w is the sign of `(N × T) · (−∂P/∂v)`: an
-/// unmirrored mapping has w = +1, which is what Blender's exporter writes as TANGENT (checked
-/// on `bench/materials/mat_punctual` exported with tangents: w = +1 at every vertex) and what
-/// three.js gets by negating MikkTSpace's sign for glTF. Taking the sign along +v mirrored every
-/// normal map vertically (bumps lit from the wrong side).
-fn triangle_tangents(v: &Vertices, uvs: &[Vec2], t: &[u32; 3]) -> Option<[Vec4; 3]> {
-    let p = [0, 1, 2].map(|k| v.positions.get(t[k] as usize).copied());
-    let uv = [0, 1, 2].map(|k| uvs.get(t[k] as usize).copied());
-    let (Some(p0), Some(p1), Some(p2), Some(t0), Some(t1), Some(t2)) = (p[0], p[1], p[2], uv[0], uv[1], uv[2]) else {
-        return None;
-    };
-    let (e1, e2) = (p1 - p0, p2 - p0);
-    let (d1, d2) = (t1 - t0, t2 - t0);
-    let det = d1.x * d2.y - d2.x * d1.y;
-    let flat = e1.cross(e2).normalize_or_zero();
-    if !(det.abs() > 0.0) || flat == Vec3::ZERO {
-        return None;
-    }
-    let tangent = (e1 * d2.y - e2 * d1.y) / det;
-    let bitangent = (e2 * d1.x - e1 * d2.x) / det;
-    if !tangent.is_finite() || !bitangent.is_finite() {
-        return None;
-    }
-    let mut out = [Vec4::ZERO; 3];
-    for (k, o) in out.iter_mut().enumerate() {
-        let n = v
-            .normals
-            .as_ref()
-            .and_then(|ns| ns.get(t[k] as usize).copied())
-            .filter(|n| n.is_finite() && n.length_squared() > 0.0)
-            .map(Vec3::normalize)
-            .unwrap_or(flat);
-        let tn = (tangent - n * n.dot(tangent)).normalize_or_zero();
-        if tn == Vec3::ZERO {
-            return None;
-        }
-        let w = if n.cross(tn).dot(-bitangent) < 0.0 { -1.0 } else { 1.0 };
-        *o = tn.extend(w);
-    }
-    Some(out)
-}
-
-#[cfg(test)]
-mod tangent_tests {
-    use super::*;
-
-    fn quad(uvs: Vec<Vec2>) -> (Vertices, Vec<Vec2>) {
-        let v = Vertices {
-            positions: vec![Vec3::ZERO, Vec3::X, Vec3::Y],
-            normals: None,
-            uvs: Some(uvs.clone()),
-            tangents: None,
-            indices: vec![0, 1, 2],
-        };
-        (v, uvs)
-    }
-
-    /// A quad mapped as Blender exports an unmirrored UV layout (u along +x, glTF v = 1 − v
-    /// growing down the image, so along −y): handedness +1, the bitangent N × T = +y pointing up
-    /// the image, as the TANGENT attribute Blender's exporter writes (w = +1).
-    #[test]
-    fn tangent_follows_u_and_handedness_points_up_the_image() {
-        let (v, uv) = quad(vec![Vec2::Y, Vec2::ONE, Vec2::ZERO]);
-        let t = triangle_tangents(&v, &uv, &[0, 1, 2]).unwrap();
-        for c in t {
-            assert!((c.truncate() - Vec3::X).length() < 1e-6 && c.w == 1.0, "{c}");
-        }
-        // v growing along +y instead (the image mirrored vertically): the bitangent flips, so
-        // does w.
-        let (v, uv) = quad(vec![Vec2::ZERO, Vec2::X, Vec2::Y]);
-        let t = triangle_tangents(&v, &uv, &[0, 1, 2]).unwrap();
-        assert!(t.iter().all(|c| c.w == -1.0));
-        // u along y: the tangent is y.
-        let (v, uv) = quad(vec![Vec2::ZERO, Vec2::Y, Vec2::X]);
-        let t = triangle_tangents(&v, &uv, &[0, 1, 2]).unwrap();
-        assert!((t[0].truncate() - Vec3::Y).length() < 1e-6);
-    }
-
-    #[test]
-    fn degenerate_triangles_and_uvs_give_none_not_nan() {
-        let (v, uv) = quad(vec![Vec2::ZERO, Vec2::X, Vec2::X * 2.0]);
-        assert!(triangle_tangents(&v, &uv, &[0, 1, 2]).is_none());
-        let (mut v, uv) = quad(vec![Vec2::ZERO, Vec2::X, Vec2::Y]);
-        v.positions = vec![Vec3::ONE; 3];
-        assert!(triangle_tangents(&v, &uv, &[0, 1, 2]).is_none());
-        let (v, uv) = quad(vec![Vec2::ZERO, Vec2::X, Vec2::Y]);
-        assert!(triangle_tangents(&v, &uv, &[0, 1, 7]).is_none());
     }
 }

@@ -22,6 +22,7 @@ mod cameras;
 mod lights;
 mod materials;
 mod meshes;
+mod tangents;
 mod uris;
 mod validate;
 
