@@ -402,20 +402,15 @@ impl Tracer<'_> {
             return (Rgb::ZERO, 0.0);
         };
         let sp = SurfacePoint::new(self.scene, o, d, hit);
-        if !matches!(
-            self.scene.materials[sp.material as usize].surface,
-            Surface::Lambert { .. }
-        ) {
-            return (self.gather_at(&sp, d, hit.t, 0, rng), 0.0);
-        }
-        let l = bsdf::lambert(sp.albedo(self.scene)) * self.gathered_irradiance(&sp);
         let pdf = match (self.photons.estimator.bright(), aim) {
-            (Some((grids, texels)), Some(aim)) => grids.plane_facing(sp.triangle, sp.facing_normal).map_or(0.0, |k| {
-                solid_angle_pdf(texels.pdf_area(aim, k, sp.position), hit.t, d, sp.facing_normal)
-            }),
+            (Some((grids, texels)), Some(aim)) if self.is_lambert(&sp) => {
+                grids.plane_facing(sp.triangle, sp.facing_normal).map_or(0.0, |k| {
+                    solid_angle_pdf(texels.pdf_area(aim, k, sp.position), hit.t, d, sp.facing_normal)
+                })
+            }
             _ => 0.0,
         };
-        (l, pdf)
+        (self.gather_at(&sp, d, hit.t, 0, rng), pdf)
     }
 
     /// An aimed gather ray towards `s`: the radiance it brings, the cosine at `sp` and the
@@ -433,17 +428,27 @@ impl Tracer<'_> {
         let o = sp.offset(d);
         let hit = self.accel.intersect(o, d, f32::INFINITY)?;
         let z = SurfacePoint::new(self.scene, o, d, hit);
-        let lambert = matches!(
-            self.scene.materials[z.material as usize].surface,
-            Surface::Lambert { .. }
-        );
         // The ray must end at the point aimed at, on its plane: short of it, something hides it.
         let there = (hit.t - dist).abs() <= AIM_TOLERANCE * dist + 4.0 * z.eps;
-        if !lambert || !there || grids.plane_facing(z.triangle, z.facing_normal) != Some(s.plane) {
+        if !there || grids.plane_facing(z.triangle, z.facing_normal) != Some(s.plane) {
             return None;
         }
-        let l = bsdf::lambert(z.albedo(self.scene)) * self.gathered_irradiance(&z);
+        let l = self.lambert_radiance(&z)?;
         Some((l, cos, solid_angle_pdf(s.pdf_area, hit.t, d, s.normal)))
+    }
+
+    fn is_lambert(&self, sp: &SurfacePoint) -> bool {
+        matches!(
+            self.scene.materials[sp.material as usize].surface,
+            Surface::Lambert { .. }
+        )
+    }
+
+    /// Radiance leaving a Lambert surface where a gather ray landed (read from precomputed
+    /// irradiance); None for other surfaces.
+    fn lambert_radiance(&mut self, sp: &SurfacePoint) -> Option<Rgb> {
+        self.is_lambert(sp)
+            .then(|| bsdf::lambert(sp.albedo(self.scene)) * self.gathered_irradiance(sp))
     }
 
     /// Radiance leaving the first diffuse surface along a gather ray, emission excluded (direct
@@ -458,10 +463,10 @@ impl Tracer<'_> {
 
     /// Radiance leaving `sp`, where a gather ray along `d` landed after `t`.
     fn gather_at(&mut self, sp: &SurfacePoint, d: Vec3, t: f32, depth: u32, rng: &mut Rng) -> Rgb {
-        let surface = &self.scene.materials[sp.material as usize].surface;
-        if let Surface::Lambert { .. } = surface {
-            return bsdf::lambert(sp.albedo(self.scene)) * self.gathered_irradiance(sp);
+        if let Some(l) = self.lambert_radiance(sp) {
+            return l;
         }
+        let surface = &self.scene.materials[sp.material as usize].surface;
         if let Surface::Gltf(m) = surface {
             return self.gather_gltf(m, sp, (d, t, depth), rng);
         }
