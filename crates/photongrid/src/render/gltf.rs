@@ -5,11 +5,15 @@
 //! emissive lights (delta lights: light sampling only). Kept apart from `mod.rs` so that the
 //! Lambert, mirror and glass paths stay as they were.
 //!
-//! The photon estimate gives irradiance; the stored lobes turn it into radiance with their
-//! directional albedo, estimated by one BSDF sample (unbiased, cheap), as if the indirect light
-//! arrived evenly: exact for the diffuse base, an approximation for wide glossy lobes that the
-//! roughness threshold ([`crate::bsdf::GLOSSY_ROUGHNESS`]) bounds.
+//! Final gathering at a stored glossy lobe draws its rays from the BSDF and weighs what they
+//! bring by it ([`super::gather_lobe`]). The photon estimate (caustics, and indirect light
+//! where no gathering is needed) gives irradiance, which the stored lobes turn into radiance
+//! with their directional albedo, estimated by one BSDF sample (unbiased, cheap), as if that
+//! light arrived evenly: exact for the diffuse base, an approximation for wide glossy lobes
+//! that the roughness threshold ([`crate::bsdf::GLOSSY_ROUGHNESS`]) bounds. Gather rays that
+//! land on a stored glossy lobe make the same approximation there.
 
+use super::gather_lobe::GatherLobe;
 use super::Tracer;
 use crate::accel::Hit;
 use crate::bsdf::{self, GltfPoint, LobeMask};
@@ -81,8 +85,15 @@ impl Tracer<'_> {
         };
         let e = self.photons.estimator.gather(&super::query_at(sp), &mut self.knn);
         let mut l = density_radiance(albedo, e.flux, e.r2);
-        if e.needs_gathering && self.settings.gather > 0 && albedo.max_element() > 0.0 {
-            l += albedo * self.final_gather(sp, rng);
+        if e.needs_gathering && self.settings.gather > 0 {
+            // A glossy stored lobe reflects gathered light as its BSDF says (not gated on the
+            // one-sample albedo: a failed sample would drop the whole gather, a bias); the
+            // diffuse base alone reflects the cosine-weighted mean.
+            if g.stored.reflection {
+                l += self.final_gather(sp, GatherLobe::Stored(g), rng);
+            } else if albedo.max_element() > 0.0 {
+                l += albedo * self.final_gather(sp, GatherLobe::Cosine, rng);
+            }
         }
         if let Some(a) = aov.take() {
             a.albedo = g.lobes.base;

@@ -15,14 +15,15 @@ use crate::spatial::KnnBuffer;
 use crate::surface::SurfacePoint;
 use crate::Rgb;
 use emitter_edges::EmitterEdges;
+use gather_lobe::GatherLobe;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
-use std::f32::consts::PI;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 pub mod budget;
 pub mod emitter_edges;
+mod gather_lobe;
 mod gltf;
 pub mod progressive;
 pub mod sppm;
@@ -337,7 +338,7 @@ impl Tracer<'_> {
         let g = self.photons.estimator.gather(&query, &mut self.knn);
         l += density_radiance(albedo, g.flux, g.r2);
         if g.needs_gathering && self.settings.gather > 0 {
-            l += albedo * self.final_gather(sp, rng);
+            l += albedo * self.final_gather(sp, GatherLobe::Cosine, rng);
         }
         if let Some(a) = aov.take() {
             a.albedo = albedo;
@@ -347,13 +348,14 @@ impl Tracer<'_> {
         l
     }
 
-    /// Mean radiance arriving over the hemisphere from other surfaces (cosine-weighted, so
-    /// indirect radiance = albedo × this mean), read from precomputed irradiance at the first
-    /// diffuse surface each gather ray reaches through mirrors and glass. Some rays
-    /// ([`RenderSettings::gather_bright`]) are aimed at bright texels of the planes
-    /// ([`crate::estimate::bright`]); every ray is weighted by the balance heuristic over both
-    /// kinds, whose denominators count the rays (no division by their number after).
-    fn final_gather(&mut self, sp: &SurfacePoint, rng: &mut Rng) -> Rgb {
+    /// Radiance arriving over the hemisphere from other surfaces, read from precomputed
+    /// irradiance at the first diffuse surface each gather ray reaches through mirrors and glass,
+    /// weighted as `lobe` says: with [`GatherLobe::Cosine`] the cosine-weighted mean (indirect
+    /// radiance = albedo × this), with [`GatherLobe::Stored`] the radiance the stored lobes
+    /// reflect. Some rays ([`RenderSettings::gather_bright`]) are aimed at bright texels of the
+    /// planes ([`crate::estimate::bright`]); every ray is weighted by the balance heuristic over
+    /// both kinds, whose denominators count the rays (no division by their number after).
+    fn final_gather(&mut self, sp: &SurfacePoint, lobe: GatherLobe<'_>, rng: &mut Rng) -> Rgb {
         let n = self.settings.gather;
         let bright = self.photons.estimator.bright();
         let mut aim = std::mem::take(&mut self.aim);
@@ -368,24 +370,23 @@ impl Tracer<'_> {
             }
             _ => 0,
         };
-        let spread = n - aimed;
-        let weight = |cos: f32, pdf_aimed: f32| cos / (spread as f32 * cos + aimed as f32 * PI * pdf_aimed);
+        let rays = (n - aimed, aimed);
         let mut sum = Rgb::ZERO;
-        for _ in 0..spread {
-            let d = sampling::cosine_hemisphere(rng.uniform2(), sp.facing_shading_normal);
-            if d.dot(sp.facing_normal) <= 0.0 {
+        for _ in 0..rays.0 {
+            let Some(s) = lobe.sample(sp, rng) else {
                 continue;
-            }
-            let (l, pdf_aimed) = self.gather_ray_first(sp.offset(d), d, (aimed > 0).then_some(&aim), rng);
-            sum += l * weight(d.dot(sp.facing_shading_normal), pdf_aimed);
+            };
+            let (l, pdf_aimed) =
+                self.gather_ray_first(sp.offset(s.direction), s.direction, (aimed > 0).then_some(&aim), rng);
+            sum += l * lobe.weight(&s, pdf_aimed, rays);
         }
         if let Some((grids, texels)) = bright {
             for _ in 0..aimed {
                 let Some(s) = texels.sample(&aim, rng.uniform(), rng.uniform2()) else {
                     break;
                 };
-                if let Some((l, cos, pdf)) = self.aimed_ray(sp, &s, grids) {
-                    sum += l * weight(cos, pdf);
+                if let Some((l, d, pdf_aimed)) = self.aimed_ray(sp, &s, grids) {
+                    sum += l * lobe.weight(&lobe.eval(sp, d), pdf_aimed, rays);
                 }
             }
         }
@@ -413,11 +414,11 @@ impl Tracer<'_> {
         (self.gather_at(&sp, d, hit.t, 0, rng), pdf)
     }
 
-    /// An aimed gather ray towards `s`: the radiance it brings, the cosine at `sp` and the
+    /// An aimed gather ray towards `s`: the radiance it brings, its direction and the
     /// solid-angle density of the aim; None where the point is behind `sp`, faces away,
     /// is hidden, or is not a Lambert surface of that plane (cosine-distributed rays bring
     /// the light of all those).
-    fn aimed_ray(&mut self, sp: &SurfacePoint, s: &BrightSample, grids: &MultiscaleGrids) -> Option<(Rgb, f32, f32)> {
+    fn aimed_ray(&mut self, sp: &SurfacePoint, s: &BrightSample, grids: &MultiscaleGrids) -> Option<(Rgb, Vec3, f32)> {
         let to = s.point - sp.position;
         let dist = to.length();
         let d = to / dist;
@@ -434,7 +435,7 @@ impl Tracer<'_> {
             return None;
         }
         let l = self.lambert_radiance(&z)?;
-        Some((l, cos, solid_angle_pdf(s.pdf_area, hit.t, d, s.normal)))
+        Some((l, d, solid_angle_pdf(s.pdf_area, hit.t, d, s.normal)))
     }
 
     fn is_lambert(&self, sp: &SurfacePoint) -> bool {

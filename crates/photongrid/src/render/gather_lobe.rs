@@ -1,0 +1,93 @@
+//! The directions final gathering draws its rays from, and how it weighs what they bring: a
+//! cosine distribution where the surface is Lambert, the surface's own stored lobes where it
+//! is a glossy glTF surface (the indirect light then reflects as the BSDF says instead of as
+//! if it arrived evenly, which made rough metal lit by bright walls too bright).
+
+use crate::bsdf::GltfPoint;
+use crate::sampling::{self, Rng};
+use crate::surface::SurfacePoint;
+use crate::Rgb;
+use glam::Vec3;
+use std::f32::consts::PI;
+
+/// Where final-gather directions come from.
+#[derive(Clone, Copy)]
+pub(super) enum GatherLobe<'g> {
+    /// Cosine-distributed: the gather gives the cosine-weighted mean radiance (a Lambert
+    /// surface's indirect radiance is its albedo times it).
+    Cosine,
+    /// The stored lobes of a glTF surface, sampled as its BSDF: the gather gives the radiance
+    /// they reflect.
+    Stored(&'g GltfPoint),
+}
+
+/// A gather direction and what its weight needs.
+pub(super) struct LobeRay {
+    /// World direction away from the surface.
+    pub direction: Vec3,
+    /// Cosine at the shading normal ([`GatherLobe::Cosine`]).
+    cos: f32,
+    /// BSDF × cosine ([`GatherLobe::Stored`]).
+    f_cos: Rgb,
+    /// Solid-angle density of the BSDF sample ([`GatherLobe::Stored`]).
+    pdf: f32,
+}
+
+impl GatherLobe<'_> {
+    /// A direction drawn from this lobe at `sp` (None where it would leave below the
+    /// geometric surface).
+    pub fn sample(&self, sp: &SurfacePoint, rng: &mut Rng) -> Option<LobeRay> {
+        match self {
+            GatherLobe::Cosine => {
+                let d = sampling::cosine_hemisphere(rng.uniform2(), sp.facing_shading_normal);
+                (d.dot(sp.facing_normal) > 0.0).then(|| self.eval(sp, d))
+            }
+            GatherLobe::Stored(g) => {
+                let s = g.sample(g.stored, rng.uniform(), rng.uniform2())?;
+                Some(LobeRay {
+                    direction: s.direction,
+                    cos: s.direction.dot(sp.facing_shading_normal),
+                    f_cos: s.weight * s.pdf,
+                    pdf: s.pdf,
+                })
+            }
+        }
+    }
+
+    /// The same quantities for a direction `d` chosen otherwise (an aimed ray).
+    pub fn eval(&self, sp: &SurfacePoint, d: Vec3) -> LobeRay {
+        let cos = d.dot(sp.facing_shading_normal);
+        let (f_cos, pdf) = match self {
+            GatherLobe::Cosine => (Rgb::ZERO, 0.0),
+            GatherLobe::Stored(g) => {
+                let (f, pdf) = g.eval(d, g.stored);
+                (f * cos.abs(), pdf)
+            }
+        };
+        LobeRay {
+            direction: d,
+            cos,
+            f_cos,
+            pdf,
+        }
+    }
+
+    /// The balance-heuristic weight of radiance brought along `r` when `rays.0` directions
+    /// come from this lobe and `rays.1` are aimed (`pdf_aimed`: the aim's density along `r`);
+    /// the denominators count the rays.
+    pub fn weight(&self, r: &LobeRay, pdf_aimed: f32, rays: (u32, u32)) -> Rgb {
+        let (spread, aimed) = (rays.0 as f32, rays.1 as f32);
+        match self {
+            // The cosine density cos/π, written with π moved to the aim's side.
+            GatherLobe::Cosine => Rgb::splat(r.cos / (spread * r.cos + aimed * PI * pdf_aimed)),
+            GatherLobe::Stored(_) => {
+                let den = spread * r.pdf + aimed * pdf_aimed;
+                if den > 0.0 {
+                    r.f_cos / den
+                } else {
+                    Rgb::ZERO
+                }
+            }
+        }
+    }
+}
