@@ -92,7 +92,8 @@ pub static METHODS: &[MethodPreset] = &[
     },
     MethodPreset {
         name: "default",
-        description: "the default settings: caustic pass, final gathering, adaptive radius with auto grids",
+        description:
+            "the default settings: caustic pass, final gathering, the multiscale estimate over the plane grids",
         apply: |_| {},
     },
 ];

@@ -89,7 +89,8 @@ struct BenchArgs {
     /// Matrix preset; the options below override its parts.
     #[arg(long, value_enum, default_value_t = photongrid_cli::bench::Preset::Small, help_heading = "Matrix")]
     preset: photongrid_cli::bench::Preset,
-    /// Methods, comma-separated: knn, knn-k500, adaptive, single-map-knn, single-map-adaptive, gather8.
+    /// Methods, comma-separated: knn, knn-k500, adaptive, single-map-knn, single-map-adaptive, gather8,
+    /// default-knn, default (what each one is: README, Benchmarks).
     #[arg(long, value_delimiter = ',', help_heading = "Matrix")]
     methods: Vec<String>,
     /// Photon counts per pass, comma-separated (e.g. 250k,1M,4M).

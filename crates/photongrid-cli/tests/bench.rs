@@ -213,3 +213,24 @@ fn bench_runs_a_matrix_and_writes_json_charts_and_table() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("must divide"));
 }
+
+#[test]
+fn bench_help_lists_every_method() {
+    // The --methods help is written by hand beside the METHODS table: keep them in step.
+    let out = ok(&["bench", "--help"]);
+    let help = String::from_utf8_lossy(&out.stdout);
+    let text: String = help.split_whitespace().collect::<Vec<_>>().join(" ");
+    let start = text.find("Methods, comma-separated:").expect("a --methods help line");
+    let list = &text[start + "Methods, comma-separated:".len()..];
+    let listed: Vec<&str> = list[..list.find('(').unwrap_or(list.len())]
+        .split(',')
+        .map(|m| m.trim().trim_end_matches('.'))
+        .collect();
+    for m in photongrid_cli::bench::METHODS {
+        assert!(
+            listed.contains(&m.name),
+            "bench --help lists {listed:?}, lacks {}",
+            m.name
+        );
+    }
+}
