@@ -15,8 +15,12 @@ pub struct SurfacePoint {
     pub geometric_normal: Vec3,
     /// Geometric normal flipped to face the incoming ray.
     pub facing_normal: Vec3,
-    /// Interpolated shading normal, flipped to the same side as `facing_normal`.
+    /// Interpolated shading normal, normal-mapped where the material has a normal map, flipped
+    /// to the same side as `facing_normal`.
     pub facing_shading_normal: Vec3,
+    /// The interpolated normal before any normal map, on the same side (equal to
+    /// `facing_shading_normal` without a normal map; see [`crate::bsdf::bump`]).
+    pub facing_smooth_normal: Vec3,
     /// True if the ray hit the back face.
     pub backface: bool,
     /// Texture coordinates.
@@ -93,6 +97,7 @@ impl SurfacePoint {
             ns = ng;
         }
         let uv = tri.lerp(tri.uv, b1, b2);
+        let smooth = if ns.dot(facing) < 0.0 { -ns } else { ns };
         if let Some(map) = &scene.materials[tri.material as usize].normal_map {
             if let Some(t) = scene.tangents.get(hit.triangle as usize) {
                 let mapped = normal_mapped(
@@ -116,6 +121,7 @@ impl SurfacePoint {
             geometric_normal: ng,
             facing_normal: facing,
             facing_shading_normal: ns,
+            facing_smooth_normal: smooth,
             backface,
             uv,
             material: tri.material,

@@ -419,3 +419,80 @@ fn rough_metal_reflects_gathered_light_as_when_its_lobe_is_traced() {
         "stored {stored} vs traced {traced}"
     );
 }
+
+#[test]
+fn a_normal_map_shadows_grazing_light_on_a_lambert_floor_as_cycles_does() {
+    // A Lambert floor whose normal map tilts every normal 45° towards +x (tangent space
+    // (1, 0, 1)/√2; u runs along +x), under a point light 0.3 m above it. Cycles (Blender 5.0,
+    // "Bump Map Correction", on by default) multiplies diffuse light by the GGX masking G1 of
+    // α² = tan²(tilt)/8 at the light's angle to the smooth normal: where the light grazes the
+    // floor (x < −0.8 m, its cosine below 0.35) that removes 16–44 % of it. Written here
+    // from the formula, independently of `bsdf::bump`.
+    const LIGHT_Y: f64 = 0.3;
+    let s = std::f32::consts::FRAC_1_SQRT_2;
+    let mut g = Gltf::new();
+    let floor = g.material(Material {
+        normal_map: Some([s, 0.0, s]),
+        ..Material::lambert(0.5)
+    });
+    let quad = Prim::new(vec![
+        [-10.0, 0.0, -10.0],
+        [-10.0, 0.0, 10.0],
+        [10.0, 0.0, 10.0],
+        [10.0, 0.0, -10.0],
+    ])
+    .normals(vec![[0.0, 1.0, 0.0]; 4])
+    .texcoords(vec![[0.0, 0.0], [0.0, 1.0], [1.0, 1.0], [1.0, 0.0]])
+    .indices_u16(vec![0, 1, 2, 0, 2, 3])
+    .material(floor);
+    let mesh = g.mesh(vec![quad]);
+    g.root(Node {
+        mesh: Some(mesh),
+        ..Default::default()
+    });
+    let l = g.light(Light::point(CANDELA as f32));
+    g.root(Node {
+        transform: Transform::translation([0.0, LIGHT_Y as f32, 0.0]),
+        light: Some(l),
+        ..Default::default()
+    });
+    VIEW.add_camera(&mut g);
+    let dir = TempDir::new("bump");
+    let path = g.write_glb(dir.path(), "bump.glb");
+    let settings = Settings {
+        photons: 0,
+        caustic_photons: 0,
+        spp: 16,
+        width: Some(W),
+        height: Some(H),
+        ..Settings::default()
+    };
+    let (_, film) = render(&path, &settings);
+    let n = [s as f64, s as f64, 0.0];
+    let g1 = |cos_i: f64| {
+        let alpha2 = 0.125; // tan²45° / 8
+        let lambda = 0.5 * ((1.0 + alpha2 * (1.0 / (cos_i * cos_i) - 1.0)).sqrt() - 1.0);
+        1.0 / (1.0 + lambda)
+    };
+    let (mut got, mut want, mut plain) = (0.0, 0.0, 0.0);
+    for py in 0..H {
+        for px in 0..W {
+            let (x, z) = VIEW.center(px, py);
+            if x > -0.8 {
+                continue;
+            }
+            let p = [x, 0.0, z];
+            let unshadowed = harness::point_radiance(0.5, CANDELA, [0.0, LIGHT_Y, 0.0], p, n);
+            let cos_i = LIGHT_Y / (x * x + z * z + LIGHT_Y * LIGHT_Y).sqrt();
+            got += lum(film.color[(py * W + px) as usize]);
+            want += unshadowed * g1(cos_i);
+            plain += unshadowed;
+        }
+    }
+    eprintln!("bumped floor, grazing light: {got} vs {want} (without the shadowing {plain})");
+    assert!(
+        plain / want > 1.15,
+        "the case must tell the shadowing apart: {plain} vs {want}"
+    );
+    assert!((got / want - 1.0).abs() < 0.02, "{got} vs {want}");
+}

@@ -183,6 +183,9 @@ pub struct Material {
     pub specular: Option<f32>,
     /// alphaMode (`"MASK"` or `"BLEND"`) and alphaCutoff; None: OPAQUE.
     pub alpha_mode: Option<(&'static str, Option<f32>)>,
+    /// normalTexture: one tangent-space normal (x, y, z in [−1, 1], +y up the image) as a
+    /// uniform 2×2 PNG; the primitive needs TEXCOORD_0 (tangents are generated from it).
+    pub normal_map: Option<[f32; 3]>,
 }
 
 impl Default for Material {
@@ -200,6 +203,7 @@ impl Default for Material {
             double_sided: false,
             specular: Some(0.0),
             alpha_mode: None,
+            normal_map: None,
         }
     }
 }
@@ -382,6 +386,8 @@ pub struct Gltf {
     nodes: Vec<Value>,
     roots: Vec<usize>,
     extensions: Vec<&'static str>,
+    images: Vec<Value>,
+    textures: Vec<Value>,
 }
 
 const FLOAT: u32 = 5126;
@@ -516,6 +522,10 @@ impl Gltf {
         if m.emissive != [0.0; 3] {
             v["emissiveFactor"] = json!(m.emissive);
         }
+        if let Some(n) = m.normal_map {
+            let texel = n.map(|c| ((c.clamp(-1.0, 1.0) * 0.5 + 0.5) * 255.0).round() as u8);
+            v["normalTexture"] = json!({ "index": self.uniform_png(texel) });
+        }
         let mut ext = Map::new();
         if let Some(s) = m.emissive_strength {
             self.use_extension("KHR_materials_emissive_strength");
@@ -548,6 +558,18 @@ impl Gltf {
         }
         self.materials.push(v);
         self.materials.len() - 1
+    }
+
+    /// A 2×2 PNG of one RGB colour as an image and texture in the buffer; returns the texture.
+    fn uniform_png(&mut self, rgb: [u8; 3]) -> usize {
+        let img = image::RgbImage::from_pixel(2, 2, image::Rgb(rgb));
+        let mut png = std::io::Cursor::new(Vec::new());
+        img.write_to(&mut png, image::ImageFormat::Png)
+            .expect("PNG encodes in memory");
+        let view = self.view(png.get_ref(), None);
+        self.images.push(json!({"bufferView": view, "mimeType": "image/png"}));
+        self.textures.push(json!({"source": self.images.len() - 1}));
+        self.textures.len() - 1
     }
 
     /// Add a punctual light; returns its index (attach it with [`Node::light`]).
@@ -658,6 +680,8 @@ impl Gltf {
         };
         put("meshes", &self.meshes);
         put("materials", &self.materials);
+        put("images", &self.images);
+        put("textures", &self.textures);
         put("cameras", &self.cameras);
         put("accessors", &self.accessors);
         put("bufferViews", &self.buffer_views);

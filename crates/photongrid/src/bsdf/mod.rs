@@ -5,6 +5,7 @@
 //! branch choice at mirrors and glass, lobe sampling of the glTF BSDF, Beer absorption), and
 //! [`GltfPoint::eval`] the one evaluation (light sampling, photon estimates).
 
+pub mod bump;
 pub mod ggx;
 pub mod metallic_roughness;
 
@@ -361,6 +362,9 @@ pub struct GltfPoint {
     inside: bool,
     /// Direction towards where the path came from, local.
     wo: Vec3,
+    /// The smooth normal under a normal map (None without one): the diffuse lobe is shadowed
+    /// by the bump as Cycles does ([`bump`]).
+    smooth: Option<Vec3>,
 }
 
 impl GltfPoint {
@@ -380,6 +384,7 @@ impl GltfPoint {
             ng: sp.facing_normal,
             inside: sp.backface && lobes.transmission > 0.0,
             wo,
+            smooth: bump::is_bumped(sp).then_some(sp.facing_smooth_normal),
         }
     }
 
@@ -421,7 +426,7 @@ impl GltfPoint {
             return (Rgb::ZERO, 0.0);
         }
         (
-            self.lobes.eval(self.wo, l, self.inside, mask),
+            self.bumped_eval(wi, l, mask),
             self.lobes.pdf(self.wo, l, self.inside, mask),
         )
     }
@@ -432,7 +437,26 @@ impl GltfPoint {
         if mask.is_empty() || !self.consistent(wi, l) {
             return Rgb::ZERO;
         }
-        self.lobes.eval(self.wo, l, self.inside, mask)
+        self.bumped_eval(wi, l, mask)
+    }
+
+    /// [`Lobes::eval`] with the diffuse lobe shadowed by a normal map's bump ([`bump`]) for
+    /// the light's direction: `wi` (world; `l` local), or `wo` on a photon path.
+    fn bumped_eval(&self, wi: Vec3, l: Vec3, mask: LobeMask) -> Rgb {
+        let f = self.lobes.eval(self.wo, l, self.inside, mask);
+        let Some(smooth) = self.smooth.filter(|_| mask.diffuse) else {
+            return f;
+        };
+        let light = if self.lobes.adjoint { self.world(self.wo) } else { wi };
+        let b = bump::bump_shadowing(smooth, self.frame[2], light);
+        if b == 1.0 {
+            return f;
+        }
+        let diffuse = LobeMask {
+            diffuse: true,
+            ..LobeMask::NONE
+        };
+        f - self.lobes.eval(self.wo, l, self.inside, diffuse) * (1.0 - b)
     }
 
     /// Sample the lobes in `mask` with the random numbers `u_lobe`, `u`.
@@ -445,9 +469,14 @@ impl GltfPoint {
         if !self.consistent(direction, s.wi) {
             return None;
         }
+        let weight = if self.smooth.is_some() && mask.diffuse {
+            self.bumped_eval(direction, s.wi, mask) * (s.wi.z.abs() / s.pdf)
+        } else {
+            s.weight
+        };
         Some(Sampled {
             direction,
-            weight: s.weight,
+            weight,
             pdf: s.pdf,
             traced: false,
         })

@@ -373,7 +373,8 @@ fn trace_path(
                 if rng.uniform() >= q {
                     return;
                 }
-                power *= albedo / q;
+                // A normal map shadows the light it came with as in the camera pass.
+                power *= albedo / q * bsdf::bump::at(&sp, -dir);
                 dir = sampling::cosine_hemisphere(rng.uniform2(), sp.facing_shading_normal);
                 if dir.dot(sp.facing_normal) <= 0.0 {
                     return; // shading normal sent it below the surface

@@ -3,7 +3,7 @@
 //! is a glossy glTF surface (the indirect light then reflects as the BSDF says instead of as
 //! if it arrived evenly, which made rough metal lit by bright walls too bright).
 
-use crate::bsdf::GltfPoint;
+use crate::bsdf::{self, GltfPoint};
 use crate::sampling::{self, Rng};
 use crate::surface::SurfacePoint;
 use crate::Rgb;
@@ -31,6 +31,9 @@ pub(super) struct LobeRay {
     f_cos: Rgb,
     /// Solid-angle density of the BSDF sample ([`GatherLobe::Stored`]).
     pdf: f32,
+    /// A normal map's shadowing of the light from this direction ([`GatherLobe::Cosine`]; the
+    /// glTF BSDF applies its own).
+    bump: f32,
 }
 
 impl GatherLobe<'_> {
@@ -49,6 +52,7 @@ impl GatherLobe<'_> {
                     cos: s.direction.dot(sp.facing_shading_normal),
                     f_cos: s.weight * s.pdf,
                     pdf: s.pdf,
+                    bump: 1.0,
                 })
             }
         }
@@ -57,11 +61,11 @@ impl GatherLobe<'_> {
     /// The same quantities for a direction `d` chosen otherwise (an aimed ray).
     pub fn eval(&self, sp: &SurfacePoint, d: Vec3) -> LobeRay {
         let cos = d.dot(sp.facing_shading_normal);
-        let (f_cos, pdf) = match self {
-            GatherLobe::Cosine => (Rgb::ZERO, 0.0),
+        let (f_cos, pdf, bump) = match self {
+            GatherLobe::Cosine => (Rgb::ZERO, 0.0, bsdf::bump::at(sp, d)),
             GatherLobe::Stored(g) => {
                 let (f, pdf) = g.eval(d, g.stored);
-                (f * cos.abs(), pdf)
+                (f * cos.abs(), pdf, 1.0)
             }
         };
         LobeRay {
@@ -69,6 +73,7 @@ impl GatherLobe<'_> {
             cos,
             f_cos,
             pdf,
+            bump,
         }
     }
 
@@ -79,7 +84,7 @@ impl GatherLobe<'_> {
         let (spread, aimed) = (rays.0 as f32, rays.1 as f32);
         match self {
             // The cosine density cos/π, written with π moved to the aim's side.
-            GatherLobe::Cosine => Rgb::splat(r.cos / (spread * r.cos + aimed * PI * pdf_aimed)),
+            GatherLobe::Cosine => Rgb::splat(r.bump * r.cos / (spread * r.cos + aimed * PI * pdf_aimed)),
             GatherLobe::Stored(_) => {
                 let den = spread * r.pdf + aimed * pdf_aimed;
                 if den > 0.0 {

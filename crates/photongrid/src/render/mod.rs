@@ -336,7 +336,8 @@ impl Tracer<'_> {
             triangle: sp.triangle,
         };
         let g = self.photons.estimator.gather(&query, &mut self.knn);
-        l += density_radiance(albedo, g.flux, g.r2);
+        // Photons carry no direction here: a normal map's shadowing as for even light.
+        l += density_radiance(albedo * bsdf::bump::mean_sample(sp, rng), g.flux, g.r2);
         if g.needs_gathering && self.settings.gather > 0 {
             l += albedo * self.final_gather(sp, GatherLobe::Cosine, rng);
         }
@@ -516,7 +517,7 @@ impl Tracer<'_> {
                 let origin = sp.offset(inc.wi);
                 let tmax = sp.shadow_tmax(inc.distance, self.scene.bounds.diagonal());
                 if !self.accel.occluded(origin, inc.wi, tmax) {
-                    sum += inc.irradiance * cos;
+                    sum += inc.irradiance * (cos * bsdf::bump::at(sp, inc.wi));
                 }
             }
             e += sum / samples as f32;
