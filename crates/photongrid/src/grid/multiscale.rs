@@ -443,11 +443,15 @@ impl LayerTexture {
     /// (fine cells); None for photons on the plane's other side (see `orient_to_the_light`)
     /// or outside it.
     fn landing(&self, p: &Photon) -> Option<Landing> {
-        if !crate::estimate::photon_map::faces(p.normal(), self.plane.normal) {
+        if !p.faces(self.plane.normal) {
             return None;
         }
-        let cell = self.plane.cell_of(p.pos(), f32::INFINITY)?;
+        // Projected once (this runs for every photon of every pass); NaN: not on the plane.
         let (gx, gy) = self.plane.grid_coords(p.pos());
+        if gx.is_nan() || gy.is_nan() {
+            return None;
+        }
+        let cell = self.plane.grid_cell(gx, gy);
         let w = self.levels[0].w;
         let d = [gx - ((cell % w) as f32 + 0.5), gy - ((cell / w) as f32 + 0.5)];
         Some(Landing {

@@ -77,6 +77,19 @@ impl Photon {
         ))
     }
 
+    /// Whether the photon's surface faces the way `normal` does ([`crate::estimate::photon_map::faces`]),
+    /// without normalising the decoded normal: the counting of every photon into the grids
+    /// asks this.
+    pub fn faces(&self, normal: Vec3) -> bool {
+        let v = oct_unnormalised(Vec2::new(
+            dequantise(self.normal[0] as u32, 16),
+            dequantise(self.normal[1] as u32, 16),
+        ));
+        let d = v.dot(normal);
+        let t = crate::estimate::NORMAL_AGREEMENT;
+        d > 0.0 && d * d > t * t * v.length_squared()
+    }
+
     /// Unit direction towards where the photon came from (≈1° precision).
     pub fn incoming(&self) -> Vec3 {
         oct_decode(Vec2::new(
@@ -137,13 +150,18 @@ pub fn oct_encode(n: Vec3) -> Vec2 {
 
 /// Inverse of [`oct_encode`].
 pub fn oct_decode(e: Vec2) -> Vec3 {
+    oct_unnormalised(e).normalize_or_zero()
+}
+
+/// [`oct_decode`] before normalisation (same direction).
+fn oct_unnormalised(e: Vec2) -> Vec3 {
     let z = 1.0 - e.x.abs() - e.y.abs();
     let (x, y) = if z >= 0.0 {
         (e.x, e.y)
     } else {
         ((1.0 - e.y.abs()) * e.x.signum(), (1.0 - e.x.abs()) * e.y.signum())
     };
-    Vec3::new(x, y, z).normalize_or_zero()
+    Vec3::new(x, y, z)
 }
 
 /// Ward's shared-exponent RGBE, each channel rounded to the nearest step (error ≤ half a step

@@ -131,11 +131,17 @@ impl Plane {
         if !inside {
             return None;
         }
-        let (ru, rv) = (self.res_u.max(1), self.res_v.max(1));
         let (gx, gy) = self.local_to_grid(s, t);
-        // `as usize` saturates (negative → 0, NaN → 0, +inf → MAX).
-        let index = |g: f32, res: usize| -> usize { (g.floor().max(0.0) as usize).min(res - 1) };
-        Some(index(gy, rv) * ru + index(gx, ru))
+        Some(self.grid_cell(gx, gy))
+    }
+
+    /// The cell holding continuous grid coordinates `(gx, gy)`, clamped to the grid.
+    pub fn grid_cell(&self, gx: f32, gy: f32) -> usize {
+        let (ru, rv) = (self.res_u.max(1), self.res_v.max(1));
+        // `as usize` truncates, which is the floor for the non-negative values `max` leaves (and
+        // saturates: NaN → 0, +inf → MAX); no floorf call on the photon-counting path.
+        let index = |g: f32, res: usize| -> usize { (g.max(0.0) as usize).min(res - 1) };
+        index(gy, rv) * ru + index(gx, ru)
     }
 
     /// Four (cell index, weight) pairs for bilinear interpolation of cell-centred values at p
