@@ -38,6 +38,32 @@ pub fn bump_shadowing(smooth: Vec3, mapped: Vec3, wi: Vec3) -> f32 {
     1.0 / (1.0 + lambda)
 }
 
+/// The shading normal Cycles gives a glossy lobe (`ensure_valid_specular_reflection`,
+/// `kernel/closure/bsdf_util.h`): `n` rotated towards the geometric normal `ng` just enough that
+/// the mirror reflection of `i` (unit, towards the viewer, `i·ng ≥ 0`) leaves at least
+/// min(0.9 i·ng, 0.01) above the surface; `n` itself where it already does. Cycles applies it
+/// wherever the shading normal differs from the geometric one (smooth shading, normal maps).
+pub fn valid_reflection_normal(ng: Vec3, i: Vec3, n: Vec3) -> Vec3 {
+    let r = 2.0 * n.dot(i) * n - i;
+    let iz = i.dot(ng);
+    let threshold = (0.9 * iz).min(0.01);
+    if ng.dot(r) >= threshold {
+        return n;
+    }
+    let x = (n - n.dot(ng) * ng).try_normalize().unwrap_or(n);
+    let ix = i.dot(x);
+    let a = ix * ix + iz * iz;
+    let b = 2.0 * (a + iz * threshold);
+    let c = (threshold + iz) * (threshold + iz);
+    let root = (b * b - 4.0 * a * c).max(0.0).sqrt();
+    let nz2 = if ix < 0.0 {
+        0.25 * (b + root) / a
+    } else {
+        0.25 * (b - root) / a
+    };
+    (1.0 - nz2).max(0.0).sqrt() * x + nz2.max(0.0).sqrt() * ng
+}
+
 /// [`bump_shadowing`] at a surface point for light from `wi`.
 pub fn at(sp: &SurfacePoint, wi: Vec3) -> f32 {
     bump_shadowing(sp.facing_smooth_normal, sp.facing_shading_normal, wi)
@@ -83,6 +109,23 @@ mod tests {
         let cos_i = wi.z;
         let lambda = 0.5 * ((1.0 + 0.045 * (1.0 / (cos_i * cos_i) - 1.0)).sqrt() - 1.0);
         assert!((large - 1.0 / (1.0 + lambda)).abs() < 1e-5);
+    }
+
+    #[test]
+    fn a_reflection_below_the_surface_is_lifted_to_the_threshold() {
+        let ng = Vec3::Z;
+        // Seen at grazing incidence, a normal tilted away from the viewer reflects below.
+        let i = Vec3::new(-0.99, 0.0, 0.1411).normalize();
+        let n = Vec3::new(0.3, 0.0, 1.0).normalize();
+        assert!(ng.dot(2.0 * n.dot(i) * n - i) < 0.0);
+        let v = valid_reflection_normal(ng, i, n);
+        let r = 2.0 * v.dot(i) * v - i;
+        assert!((v.length() - 1.0).abs() < 1e-5);
+        assert!((r.dot(ng) - (0.9 * i.z).min(0.01)).abs() < 1e-4, "{}", r.dot(ng));
+        assert!(v.dot(ng) > n.dot(ng), "rotated towards the geometric normal");
+        // A valid reflection keeps its normal.
+        let head_on = Vec3::new(0.2, 0.0, 1.0).normalize();
+        assert_eq!(valid_reflection_normal(ng, head_on, n), n);
     }
 
     #[test]

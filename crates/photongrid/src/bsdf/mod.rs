@@ -371,9 +371,16 @@ impl GltfPoint {
     /// The BSDF of material `m` at `sp` for a ray travelling along `d`.
     pub fn at(scene: &Scene, m: &MetallicRoughness, sp: &SurfacePoint, d: Vec3) -> Self {
         let lobes = lobes_at(scene, m, sp.uv);
-        let n = sp.facing_shading_normal;
-        let (t, b) = sampling::basis(n);
         let w = -d;
+        // Cycles lifts a glossy lobe's normal where its mirror reflection of the viewer would
+        // leave below the surface; the diffuse lobe keeps the shading normal, so only lobes
+        // without a diffuse part follow it here (metal, glass).
+        let n = if lobes.present().diffuse || sp.facing_shading_normal == sp.facing_normal {
+            sp.facing_shading_normal
+        } else {
+            bump::valid_reflection_normal(sp.facing_normal, w, sp.facing_shading_normal)
+        };
+        let (t, b) = sampling::basis(n);
         let wo = Vec3::new(w.dot(t), w.dot(b), w.dot(n).max(1e-4)).normalize();
         let (stored, traced) = lobes.split(scene.glossy_roughness * scene.glossy_roughness);
         GltfPoint {
