@@ -31,7 +31,17 @@ const LIGHT_H: f64 = 2.0;
 const CANDELA: f64 = 500.0;
 
 fn render(path: &std::path::Path, settings: &Settings) -> (photongrid::scene::Scene, Film) {
-    let scene = photongrid::load(path).unwrap_or_else(|e| panic!("{e}"));
+    render_with(path, settings, |_| {})
+}
+
+/// [`render`] with the loaded scene changed by `edit` first.
+fn render_with(
+    path: &std::path::Path,
+    settings: &Settings,
+    edit: impl FnOnce(&mut photongrid::scene::Scene),
+) -> (photongrid::scene::Scene, Film) {
+    let mut scene = photongrid::load(path).unwrap_or_else(|e| panic!("{e}"));
+    edit(&mut scene);
     let cams = select_cameras(&scene, &[]).unwrap();
     let progress = Progress::quiet();
     let mut times = PhaseTimes::default();
@@ -387,15 +397,11 @@ fn rough_metal_reflects_gathered_light_as_when_its_lobe_is_traced() {
         ..Settings::default()
     };
     let sphere_mean = |threshold: Option<f32>| {
-        let mut scene = photongrid::load(&path).unwrap_or_else(|e| panic!("{e}"));
-        if let Some(t) = threshold {
-            scene.glossy_roughness = t;
-        }
-        let cams = select_cameras(&scene, &[]).unwrap();
-        let progress = Progress::quiet();
-        let mut times = PhaseTimes::default();
-        let prepared = prepare(&scene, &settings, &progress, &mut times).unwrap();
-        let film = render_camera(&scene, &prepared, cams[0], &settings, &progress);
+        let (_, film) = render_with(&path, &settings, |scene| {
+            if let Some(t) = threshold {
+                scene.glossy_roughness = t;
+            }
+        });
         let (mut sum, mut n) = (0.0, 0);
         for py in 0..N {
             for px in 0..N {

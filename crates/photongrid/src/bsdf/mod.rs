@@ -433,7 +433,7 @@ impl GltfPoint {
             return (Rgb::ZERO, 0.0);
         }
         (
-            self.bumped_eval(wi, l, mask),
+            self.bumped(self.lobes.eval(self.wo, l, self.inside, mask), wi, l, mask),
             self.lobes.pdf(self.wo, l, self.inside, mask),
         )
     }
@@ -444,13 +444,13 @@ impl GltfPoint {
         if mask.is_empty() || !self.consistent(wi, l) {
             return Rgb::ZERO;
         }
-        self.bumped_eval(wi, l, mask)
+        self.bumped(self.lobes.eval(self.wo, l, self.inside, mask), wi, l, mask)
     }
 
-    /// [`Lobes::eval`] with the diffuse lobe shadowed by a normal map's bump ([`bump`]) for
-    /// the light's direction: `wi` (world; `l` local), or `wo` on a photon path.
-    fn bumped_eval(&self, wi: Vec3, l: Vec3, mask: LobeMask) -> Rgb {
-        let f = self.lobes.eval(self.wo, l, self.inside, mask);
+    /// `f`, the lobes in `mask` evaluated towards `wi` (world; `l` local), with the diffuse
+    /// lobe shadowed by a normal map's bump ([`bump`]) for the light's direction: `wi`, or `wo`
+    /// on a photon path.
+    fn bumped(&self, f: Rgb, wi: Vec3, l: Vec3, mask: LobeMask) -> Rgb {
         let Some(smooth) = self.smooth.filter(|_| mask.diffuse) else {
             return f;
         };
@@ -477,7 +477,7 @@ impl GltfPoint {
             return None;
         }
         let weight = if self.smooth.is_some() && mask.diffuse {
-            self.bumped_eval(direction, s.wi, mask) * (s.wi.z.abs() / s.pdf)
+            self.bumped(s.f, direction, s.wi, mask) * (s.wi.z.abs() / s.pdf)
         } else {
             s.weight
         };

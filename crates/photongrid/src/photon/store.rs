@@ -71,7 +71,12 @@ impl Photon {
 
     /// Unit surface normal on the receiving side.
     pub fn normal(&self) -> Vec3 {
-        oct_decode(Vec2::new(
+        self.normal_direction().normalize_or_zero()
+    }
+
+    /// The surface normal's direction, not normalised.
+    fn normal_direction(&self) -> Vec3 {
+        oct_unnormalised(Vec2::new(
             dequantise(self.normal[0] as u32, 16),
             dequantise(self.normal[1] as u32, 16),
         ))
@@ -81,10 +86,7 @@ impl Photon {
     /// without normalising the decoded normal: the counting of every photon into the grids
     /// asks this.
     pub fn faces(&self, normal: Vec3) -> bool {
-        let v = oct_unnormalised(Vec2::new(
-            dequantise(self.normal[0] as u32, 16),
-            dequantise(self.normal[1] as u32, 16),
-        ));
+        let v = self.normal_direction();
         let d = v.dot(normal);
         let t = crate::estimate::NORMAL_AGREEMENT;
         d > 0.0 && d * d > t * t * v.length_squared()
