@@ -64,9 +64,9 @@ enum Command {
     /// Error against time: render methods × photon counts × scenes × seeds against references;
     /// write bench.json, SVG charts and table.md.
     Bench(BenchArgs),
-    /// This machine's limits against a render: closest-hit and shadow rays/s through the BVH
-    /// for photon-pass-like rays, kNN queries/s on the photon index, and the same phases'
-    /// rates inside a real render of the classic pipeline, with their ratio.
+    /// This machine's limits against a render: closest-hit rays/s through the BVH for the
+    /// photon pass's own rays, shadow rays/s, kNN queries/s on the photon index, and the same
+    /// phases' rates inside a real render of the classic pipeline, with their ratio.
     Throughput(ThroughputArgs),
     /// Print the render settings: their defaults (jobs-file keys), or with --schema a JSON
     /// description of each (flag, heading, help, default, choices) for front ends such as the

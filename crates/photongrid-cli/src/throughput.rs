@@ -1,10 +1,11 @@
 //! `photongrid throughput`: this machine's limits against what a render reaches.
 //!
 //! For a scene it measures, each on one thread and on all of them:
-//! * closest-hit and shadow (occlusion) rays per second through the library's BVH
-//!   ([`Accel`]), for incoherent rays distributed like the photon pass's: diffuse random walks
-//!   from the lights (origins on the surfaces the light reaches, cosine-distributed directions
-//!   about the facing normal), recorded once and then traced again under the clock;
+//! * closest-hit rays per second through the library's BVH ([`Accel`]) for the photon pass's
+//!   own rays: the first `rays` rays of the real render's photon pass, recorded in path order
+//!   and then traced again under the clock;
+//! * shadow (occlusion) rays per second over diffuse random walks from the lights (origins on
+//!   the surfaces the light reaches, cosine-distributed directions about the facing normal);
 //! * kNN queries per second on the photon index ([`PhotonMap`], the classic estimate's k) at
 //!   the walks' surface points, with the normal test the estimate uses;
 //! * a real render of the classic pipeline (kNN, photons shown directly, no final gathering,
@@ -14,11 +15,11 @@
 //!
 //! The ratio that matters is the photon pass's rays per second per core over the pure
 //! closest-hit rate per core with all threads busy: how close the photon pass is to the BVH's
-//! limit for the same kind of rays.
+//! limit for the same rays.
 
 use anyhow::{Context, Result};
 use glam::Vec3;
-use photongrid::accel::Accel;
+use photongrid::accel::{Accel, ClosestHit, Hit};
 use photongrid::estimate::PhotonMap;
 use photongrid::photon::{trace_photons, TraceSettings};
 use photongrid::pipeline::{self, RenderRequest};
@@ -32,6 +33,7 @@ use photongrid::surface::SurfacePoint;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+use std::sync::Mutex;
 use std::time::Instant;
 
 /// Stream of the recorded walks' random numbers (apart from the renderer's streams).
@@ -117,7 +119,7 @@ pub struct SceneThroughput {
     pub triangles: usize,
     /// Worker threads.
     pub threads: usize,
-    /// Closest-hit rays per second.
+    /// Closest-hit rays per second, for the photon pass's own rays.
     pub closest_hit: Rate,
     /// Shadow rays (occlusion tests over half the walk segments) per second.
     pub shadow: Rate,
@@ -140,11 +142,61 @@ struct WalkRay {
     t: f32,
 }
 
+/// The BVH answering the photon tracer and keeping every ray it is asked, in the order asked.
+struct RayRecorder<'a> {
+    accel: &'a Accel,
+    rays: Mutex<Vec<WalkRay>>,
+}
+
+impl ClosestHit for RayRecorder<'_> {
+    fn closest_hit(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit> {
+        let hit = self.accel.intersect(origin, dir, tmax);
+        if let Ok(mut rays) = self.rays.lock() {
+            rays.push(WalkRay {
+                origin,
+                dir,
+                t: hit.map_or(f32::INFINITY, |h| h.t),
+            });
+        }
+        hit
+    }
+}
+
+/// The photon pass of the classic pipeline with `paths` paths (the one [`render_rates`]
+/// renders, for `opts.photons`).
+fn classic_trace(opts: &ThroughputOptions, paths: usize) -> TraceSettings {
+    TraceSettings {
+        photons: paths,
+        max_depth: classic_settings(opts).photon_hits(),
+        store_direct: true,
+        seed: opts.seed,
+        record_triangles: false,
+        caustic_photons: 0,
+    }
+}
+
+/// Every closest-hit ray of the classic photon pass of `paths` paths, in path order: one
+/// thread traces the paths one after the other, as each thread of the real pass does with its
+/// chunks. Its first rays are those of the pass [`render_rates`] renders (same seed).
+fn record_photon_rays(scene: &Scene, accel: &Accel, opts: &ThroughputOptions, paths: usize) -> Result<Vec<WalkRay>> {
+    let trace = classic_trace(opts, paths);
+    let recorder = RayRecorder {
+        accel,
+        rays: Mutex::new(Vec::with_capacity(opts.rays)),
+    };
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .context("starting a thread to record the photon pass's rays")?
+        .install(|| trace_photons(scene, &recorder, &trace, &|_| {}));
+    Ok(recorder.rays.into_inner().unwrap_or_else(|e| e.into_inner()))
+}
+
 /// A recorded surface point with its facing normal (a kNN query site).
 type Site = (Vec3, Vec3);
 
-/// Diffuse random walks from the lights until `n` rays are recorded: the photon pass's rays
-/// without its glass and mirrors, and the surface points the walks reached.
+/// Diffuse random walks from the lights until `n` rays are recorded: rays like the photon
+/// pass's without its glass and mirrors, and the surface points the walks reached.
 fn record_walks(scene: &Scene, accel: &Accel, n: usize, seed: u64) -> (Vec<WalkRay>, Vec<Site>) {
     let lights = LightSampler::new(&scene.lights);
     let (mut rays, mut sites) = (Vec::with_capacity(n), Vec::new());
@@ -222,15 +274,7 @@ pub fn classic_settings(opts: &ThroughputOptions) -> Settings {
 /// kNN queries per second on an index of the scene's photons (the classic pass's), at `sites`.
 fn knn_rate(scene: &Scene, accel: &Accel, sites: &[Site], opts: &ThroughputOptions) -> (Rate, usize) {
     let settings = classic_settings(opts);
-    let trace = TraceSettings {
-        photons: opts.photons,
-        max_depth: settings.photon_hits(),
-        store_direct: true,
-        seed: opts.seed,
-        record_triangles: false,
-        caustic_photons: 0,
-    };
-    let (photons, _, _) = trace_photons(scene, accel, &trace, &|_| {});
+    let (photons, _, _) = trace_photons(scene, accel, &classic_trace(opts, opts.photons), &|_| {});
     let max_radius = settings.max_radius * scene.bounds.diagonal();
     let map = PhotonMap::build(photons, opts.k, scene.surface_area(), max_radius);
     let sites = &sites[..sites.len().min(opts.queries)];
@@ -274,7 +318,10 @@ pub fn measure(path: &Path, opts: &ThroughputOptions) -> Result<SceneThroughput>
     let scene = photongrid::load(path).with_context(|| format!("loading {}", path.display()))?;
     let accel = Accel::for_scene(&scene);
     let (rays, sites) = record_walks(&scene, &accel, opts.rays, opts.seed);
-    let closest_hit = rate(&rays, |r| {
+    // Every path traces at least one ray: `rays` paths give at least `rays` rays.
+    let mut photon_rays = record_photon_rays(&scene, &accel, opts, opts.rays)?;
+    photon_rays.truncate(opts.rays);
+    let closest_hit = rate(&photon_rays, |r| {
         accel
             .intersect(r.origin, r.dir, f32::INFINITY)
             .map_or(0, |h| h.triangle)
@@ -339,4 +386,38 @@ pub fn table_md(results: &[SceneThroughput]) -> String {
         );
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_recorded_rays_are_the_photon_pass_rays() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../samples/cornell_glass.glb");
+        let scene = photongrid::load(&path).expect("sample loads");
+        let accel = Accel::for_scene(&scene);
+        let opts = ThroughputOptions {
+            seed: 3,
+            ..ThroughputOptions::default()
+        };
+        let paths = 3_000;
+        let rays = record_photon_rays(&scene, &accel, &opts, paths).expect("recorded");
+        let (photons, _, stats) = trace_photons(&scene, &accel, &classic_trace(&opts, paths), &|_| {});
+        assert_eq!(rays.len(), stats.rays);
+        // Each stored photon lies where a recorded ray ended: the rays are the pass's own.
+        let hits: Vec<Vec3> = rays
+            .iter()
+            .filter(|r| r.t.is_finite())
+            .map(|r| r.origin + r.dir * r.t)
+            .collect();
+        assert!(
+            hits.len() >= photons.len() && photons.len() > paths / 2,
+            "{} {}",
+            hits.len(),
+            photons.len()
+        );
+        let near = |p: Vec3| hits.iter().any(|h| h.distance(p) < 1e-3);
+        assert!(photons.iter().step_by(7).all(|p| near(p.pos())));
+    }
 }

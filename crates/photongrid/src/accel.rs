@@ -17,6 +17,20 @@ pub struct Hit {
     pub triangle: u32,
 }
 
+/// Closest-hit queries, all the photon tracer asks of the scene's geometry. [`Accel`] answers
+/// them; `photongrid throughput` wraps it to record the photon pass's own rays.
+pub trait ClosestHit: Sync {
+    /// Closest hit along `origin + t·dir`, `t` in (0, tmax).
+    fn closest_hit(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit>;
+}
+
+impl ClosestHit for Accel {
+    #[inline]
+    fn closest_hit(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit> {
+        self.intersect(origin, dir, tmax)
+    }
+}
+
 /// The acceleration structure.
 pub struct Accel {
     bvh: CwBvh,
@@ -172,6 +186,7 @@ impl Accel {
 
     /// The triangle test of traversal: the distance to entry `id` of `tris`, infinite where
     /// alpha cuts the triangle away.
+    #[inline]
     fn test(&self, r: &Ray, id: usize) -> f32 {
         let t = self.tris[id].intersect(r);
         match &self.coverage {

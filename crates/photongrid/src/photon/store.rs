@@ -132,7 +132,15 @@ impl Positioned for Photon {
 
 fn quantise(x: f32, bits: u32) -> u32 {
     let max = ((1u32 << bits) - 1) as f32;
-    ((x.clamp(-1.0, 1.0) * 0.5 + 0.5) * max).round() as u32
+    round_non_negative((x.clamp(-1.0, 1.0) * 0.5 + 0.5) * max)
+}
+
+/// `v.round() as u32` for `v ≥ 0`, without the library call that `round` is on baseline
+/// x86-64 (`v - trunc(v)` is exact).
+#[inline]
+fn round_non_negative(v: f32) -> u32 {
+    let t = v as u32;
+    t + (v - t as f32 >= 0.5) as u32
 }
 
 fn dequantise(q: u32, bits: u32) -> f32 {
@@ -189,26 +197,42 @@ pub fn rgbe_encode_dithered(c: Rgb, dither: Vec3) -> [u8; 4] {
     if !(m > 1e-38) || !m.is_finite() {
         return [0; 4];
     }
-    let mut e = m.log2().floor() as i32 + 1; // m / 2^e in [0.5, 1)
+    let mut e = floor_log2(m) + 1; // m / 2^e in [0.5, 1)
     if m * 256.0 * exp2i(-e) > 255.0 {
         // Just below a power of two the largest channel needs more than 255 steps: take the next
         // exponent (clamping at 255 would lose up to a whole step).
         e += 1;
     }
     let scale = 256.0 * exp2i(-e);
-    let enc = |v: f32, u: f32| ((v * scale + u.clamp(0.0, 0.999_999)).floor() as u32).min(255) as u8;
+    // Truncation is the floor here (the sum is ≥ 0), without a library call.
+    let enc = |v: f32, u: f32| ((v * scale + u.clamp(0.0, 0.999_999)) as u32).min(255) as u8;
     let r = [enc(c.x, dither.x), enc(c.y, dither.y), enc(c.z, dither.z)];
     [r[0], r[1], r[2], (e + 128).clamp(0, 255) as u8]
 }
 
-/// `2^k`, the value `2f32.powi(k)` gives, built from its bits where it is a normal float (the
-/// photon pass encodes every photon's power: `powi` is a loop of multiplications).
+/// `floor(log2 m)` for a positive, finite `m`: the exponent bits of a normal float (no
+/// `log2f` and `floorf` calls per photon).
+#[inline]
+fn floor_log2(m: f32) -> i32 {
+    let biased = (m.to_bits() >> 23) as i32 & 0xff;
+    if biased == 0 {
+        m.log2().floor() as i32 // subnormal
+    } else {
+        biased - 127
+    }
+}
+
+/// `2^k` rounded to an `f32` (subnormal, zero or infinite out of range), built from its bits
+/// (the photon pass encodes and counts every photon's power). No `powi`, not even for a rare
+/// out-of-range `k`: LLVM treats it as free of side effects and computed it on every call,
+/// hoisted out of the branch (and `2f32.powi(k)` is 0 from k = −128 on: 2¹²⁸ overflows).
 #[inline]
 fn exp2i(k: i32) -> f32 {
-    if (-126..=127).contains(&k) {
-        f32::from_bits(((k + 127) as u32) << 23)
-    } else {
-        2f32.powi(k)
+    match k {
+        128.. => f32::INFINITY,
+        -126..=127 => f32::from_bits(((k + 127) as u32) << 23),
+        -149..=-127 => f32::from_bits(1 << (k + 149)), // subnormal
+        _ => 0.0,
     }
 }
 
@@ -258,9 +282,23 @@ mod tests {
     }
 
     #[test]
-    fn exp2i_is_powi() {
-        for k in -160..=160 {
-            assert_eq!(exp2i(k).to_bits(), 2f32.powi(k).to_bits(), "2^{k}");
+    fn bit_tricks_match_the_library() {
+        let mut rng = Rng::keyed(8, 8, 8);
+        for i in 0..100_000 {
+            let m = f32::from_bits(rng.next_u32() & 0x7f7f_ffff).max(f32::from_bits(1));
+            assert_eq!(floor_log2(m), m.log2().floor() as i32, "{m:e}");
+            let v = (i as f32 * 0.5 + rng.uniform()).min(65535.0);
+            assert_eq!(round_non_negative(v), v.round() as u32, "{v}");
+        }
+        for v in [0.0, 0.5, 0.49999997, 1.5, 2.5, 65534.5, 65535.0] {
+            assert_eq!(round_non_negative(v), v.round() as u32, "{v}");
+        }
+    }
+
+    #[test]
+    fn exp2i_is_two_to_the_k() {
+        for k in (-400..=400).chain([i32::MIN, i32::MAX]) {
+            assert_eq!(exp2i(k).to_bits(), (2f64.powi(k) as f32).to_bits(), "2^{k}");
         }
     }
 

@@ -3,7 +3,7 @@
 
 use super::caustic::SpecularTargets;
 use super::store::{Photon, PhotonKind};
-use crate::accel::Accel;
+use crate::accel::ClosestHit;
 use crate::bsdf;
 use crate::sampling::{self, stream, Rng};
 use crate::scene::light::LightSampler;
@@ -68,7 +68,7 @@ struct Pass {
 /// wave's buffers (collecting every chunk first held them twice).
 fn run_pass(
     scene: &Scene,
-    accel: &Accel,
+    accel: &impl ClosestHit,
     settings: &TraceSettings,
     pass: &Pass,
     progress: &(dyn Fn(usize) + Sync),
@@ -86,6 +86,7 @@ fn run_pass(
                     triangles: Vec::new(),
                     record: settings.record_triangles,
                     rays: 0,
+                    kinds: PhotonStats::default(),
                 };
                 let end = ((c + 1) * CHUNK).min(n);
                 for i in c * CHUNK..end {
@@ -100,10 +101,23 @@ fn run_pass(
                 out
             })
             .collect();
+        if wave == 0 {
+            // Room for the whole pass, from the first wave's photons per path plus an eighth:
+            // growing by doubling copied the photons up to twice more (pages never written
+            // are not resident).
+            let stored: usize = outs.iter().map(|c| c.photons.len()).sum();
+            let done = (WAVE * CHUNK).min(n);
+            let expected = (stored as f64 / done as f64 * n as f64 * 1.125) as usize;
+            all.photons.reserve(expected);
+            if settings.record_triangles {
+                all.triangles.reserve(expected);
+            }
+        }
         for c in outs {
             all.photons.extend_from_slice(&c.photons);
             all.triangles.extend_from_slice(&c.triangles);
             all.rays += c.rays;
+            all.kinds.add(&c.kinds);
         }
     }
 }
@@ -114,6 +128,8 @@ struct PassOutput {
     photons: Vec<Photon>,
     triangles: Vec<u32>,
     rays: usize,
+    /// The photons' counts and power by kind ([`PhotonStats::count`]).
+    kinds: PhotonStats,
 }
 
 /// What the photon pass produced.
@@ -179,7 +195,7 @@ const WAVE: usize = 128;
 /// Returns the photons, the triangle of each (empty unless `record_triangles`), and counts.
 pub fn trace_photons(
     scene: &Scene,
-    accel: &Accel,
+    accel: &impl ClosestHit,
     settings: &TraceSettings,
     progress: &(dyn Fn(usize) + Sync),
 ) -> (Vec<Photon>, Vec<u32>, PhotonStats) {
@@ -251,24 +267,22 @@ pub fn trace_photons(
         caustic_seconds: t0.elapsed().as_secs_f64() - global_seconds,
         ..Default::default()
     };
-    stats.count_kinds(&photons);
+    stats.add(&out.kinds);
     (photons, triangles, stats)
 }
 
 impl PhotonStats {
-    /// Add the photons of each kind, and their power, to the counts.
-    fn count_kinds(&mut self, photons: &[Photon]) {
-        for p in photons {
-            let power = crate::luminance(p.power()) as f64;
-            self.stored_power += power;
-            match p.kind() {
-                PhotonKind::Direct => self.direct += 1,
-                PhotonKind::Caustic => {
-                    self.caustic += 1;
-                    self.caustic_power += power;
-                }
-                PhotonKind::Indirect => self.indirect += 1,
+    /// Count a stored photon by kind, with its power.
+    fn count(&mut self, p: &Photon) {
+        let power = crate::luminance(p.power()) as f64;
+        self.stored_power += power;
+        match p.kind() {
+            PhotonKind::Direct => self.direct += 1,
+            PhotonKind::Caustic => {
+                self.caustic += 1;
+                self.caustic_power += power;
             }
+            PhotonKind::Indirect => self.indirect += 1,
         }
     }
 }
@@ -280,10 +294,13 @@ struct Out {
     record: bool,
     /// Closest-hit rays traced.
     rays: usize,
+    /// Counts by kind, added in chunk order (the same sums whatever the thread count).
+    kinds: PhotonStats,
 }
 
 impl Out {
     fn push(&mut self, p: Photon, triangle: u32) {
+        self.kinds.count(&p);
         self.photons.push(p);
         if self.record {
             self.triangles.push(triangle);
@@ -342,7 +359,7 @@ fn gltf_step(
 /// Follow one photon path from `origin` along `dir` with `power`, storing its photons in `out`.
 fn trace_path(
     scene: &Scene,
-    accel: &Accel,
+    accel: &impl ClosestHit,
     settings: &TraceSettings,
     pass: PassKind,
     (mut origin, mut dir, mut power): (Vec3, Vec3, Rgb),
@@ -352,7 +369,7 @@ fn trace_path(
     let mut kind = PhotonKind::Direct;
     for depth in 1..=settings.max_depth {
         out.rays += 1;
-        let Some(hit) = accel.intersect(origin, dir, f32::INFINITY) else {
+        let Some(hit) = accel.closest_hit(origin, dir, f32::INFINITY) else {
             return;
         };
         let sp = SurfacePoint::new(scene, origin, dir, hit);

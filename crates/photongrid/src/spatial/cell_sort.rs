@@ -58,8 +58,10 @@ where
     let buckets = Buckets::new(items, &key, ncells);
     let mut index: Vec<u32> = (0..n as u32).into_par_iter().collect();
     if buckets.len() > 1 {
-        let bucket_of = |t: &T| buckets.of_cell(key(t));
-        distribute(items, &mut index, &bucket_of, &buckets.starts);
+        // The buckets looked up in parallel first: the serial distribution then reads two
+        // bytes per item instead of computing a cell and a table look-up at every swap.
+        let mut bucket: Vec<u16> = items.par_iter().map(|t| buckets.of_cell(key(t)) as u16).collect();
+        distribute(items, &mut index, &mut bucket, &buckets.starts);
     }
     // Disjoint sub-slices of items, input indices and offsets, one per bucket, sorted in
     // parallel.
@@ -103,6 +105,8 @@ impl Buckets {
             shift += 1;
         }
         let blocks = ncells.div_ceil(1 << shift);
+        // At most 2¹⁶ buckets, so that a bucket fits in a u16 (each closes at `per_bucket`).
+        let per_bucket = BUCKET_ITEMS.max(items.len() / (u16::MAX as usize) + 1);
         let counts = items
             .par_chunks(1 << 16)
             .fold(
@@ -125,7 +129,7 @@ impl Buckets {
         let (mut first_block, mut starts) = (vec![0usize], vec![0usize]);
         let mut sum = 0usize;
         for (b, &c) in counts.iter().enumerate() {
-            if sum - starts[starts.len() - 1] >= BUCKET_ITEMS {
+            if sum - starts[starts.len() - 1] >= per_bucket {
                 starts.push(sum);
                 first_block.push(b);
             }
@@ -158,30 +162,32 @@ impl Buckets {
     }
 }
 
-/// American flag sort: move every item (and its input index) into its bucket, in place;
-/// `starts` are the buckets' first items. Every swap puts one item where it belongs.
+/// American flag sort: move every item (with its input index and bucket) into its bucket, in
+/// place; `starts` are the buckets' first items. Every swap puts one item where it belongs.
 ///
 /// Each swap depends on the one before (the item swapped in decides where the next goes), so
-/// the walk would wait for memory at every bucket's next cache line; reading the item
-/// [`AHEAD`] places further on in the same bucket, whose result nothing waits for, fetches
-/// those lines early.
-fn distribute<T, B: Fn(&T) -> usize>(items: &mut [T], index: &mut [u32], bucket_of: &B, starts: &[usize]) {
+/// the walk would wait for memory at every bucket's next cache line; reading the bucket and
+/// the index [`AHEAD`] places further on in the same bucket, whose result nothing waits for,
+/// fetches those lines early.
+fn distribute<T>(items: &mut [T], index: &mut [u32], bucket: &mut [u16], starts: &[usize]) {
     let mut next: Vec<usize> = starts[..starts.len() - 1].to_vec();
     let last = items.len() - 1;
-    let mut fetched = 0usize;
+    let mut fetched = 0u32;
     for b in 0..next.len() {
         let end = starts[b + 1];
         while next[b] < end {
             let i = next[b];
-            let to = bucket_of(&items[i]);
+            let to = bucket[i] as usize;
             if to == b {
                 next[b] += 1;
             } else {
                 let j = next[to];
                 next[to] += 1;
-                fetched ^= bucket_of(&items[(j + AHEAD).min(last)]);
+                let ahead = (j + AHEAD).min(last);
+                fetched ^= bucket[ahead] as u32 ^ index[ahead];
                 items.swap(i, j);
                 index.swap(i, j);
+                bucket.swap(i, j);
             }
         }
     }
