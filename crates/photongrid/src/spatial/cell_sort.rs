@@ -1,12 +1,13 @@
-//! Stable sorts of items by cell: how the grid puts the items of a cell next to each other.
+//! Sorts of items by cell: how the grid puts the items of a cell next to each other.
 //!
 //! The top level sorts the caller's vector in place, so that the items exist once: counts per
 //! block of cells cut the cells into *buckets*, runs of consecutive cells holding about
 //! [`BUCKET_ITEMS`] items; an in-place distribution (American flag sort) moves every item into
-//! its bucket; then each bucket, small enough for the cache, is put in input order and
-//! counting-sorted by cell, in parallel. The input index travels with the items through the distribution, so the result is
-//! the stable order a counting sort would give, whatever the thread count. Child grids sort
-//! their (small) sub-range through a copy.
+//! its bucket; then each bucket, small enough for the cache, is counting-sorted by cell, in
+//! parallel. The distribution is serial, so the order inside a cell is the same whatever the
+//! thread count (it is not the input order: carrying each item's input index through the
+//! distribution to restore it cost 4 bytes per item and a sort per bucket). Child grids sort
+//! their (small) sub-range stably through a copy.
 
 use rayon::prelude::*;
 
@@ -43,8 +44,8 @@ pub(super) fn counting_sort<T: Clone>(items: &mut [T], keys: &[u32], ncells: usi
     offsets
 }
 
-/// Stable sort of `items` by `key(item)` (< `ncells`), in place (see the module comment).
-/// Returns the offsets (length `ncells + 1`): cell `c` holds `offsets[c]..offsets[c + 1]`.
+/// Sort of `items` by `key(item)` (< `ncells`), in place, in an order that depends on the
+/// input only (see the module comment). Returns the offsets (length `ncells + 1`): cell `c` holds `offsets[c]..offsets[c + 1]`.
 pub(super) fn sort_by_cell<T, K>(items: &mut [T], key: K, ncells: usize) -> Vec<u32>
 where
     T: Clone + Send + Sync,
@@ -56,31 +57,28 @@ where
         return counting_sort(items, &keys, ncells);
     }
     let buckets = Buckets::new(items, &key, ncells);
-    let mut index: Vec<u32> = (0..n as u32).into_par_iter().collect();
     if buckets.len() > 1 {
         // The buckets looked up in parallel first: the serial distribution then reads two
         // bytes per item instead of computing a cell and a table look-up at every swap.
         let mut bucket: Vec<u16> = items.par_iter().map(|t| buckets.of_cell(key(t)) as u16).collect();
-        distribute(items, &mut index, &mut bucket, &buckets.starts);
+        distribute(items, &mut bucket, &buckets.starts);
     }
-    // Disjoint sub-slices of items, input indices and offsets, one per bucket, sorted in
-    // parallel.
+    // Disjoint sub-slices of items and offsets, one per bucket, sorted in parallel.
     let mut offsets = vec![0u32; ncells + 1];
     offsets[ncells] = n as u32;
     let mut parts = Vec::with_capacity(buckets.len());
-    let (mut rest, mut rest_index, mut rest_offsets) = (items, index.as_mut_slice(), &mut offsets[..ncells]);
+    let (mut rest, mut rest_offsets) = (items, &mut offsets[..ncells]);
     for b in 0..buckets.len() {
         let len = buckets.starts[b + 1] - buckets.starts[b];
         let (a, r) = std::mem::take(&mut rest).split_at_mut(len);
-        let (i, ri) = std::mem::take(&mut rest_index).split_at_mut(len);
         let (cells_lo, cells_hi) = buckets.cells(b, ncells);
         let (o, ro) = std::mem::take(&mut rest_offsets).split_at_mut(cells_hi - cells_lo);
-        (rest, rest_index, rest_offsets) = (r, ri, ro);
-        parts.push((a, i, o, cells_lo as u32, buckets.starts[b] as u32));
+        (rest, rest_offsets) = (r, ro);
+        parts.push((a, o, cells_lo as u32, buckets.starts[b] as u32));
     }
     parts
         .into_par_iter()
-        .for_each(|(items, index, offsets, cells_lo, base)| sort_bucket(items, index, &key, (offsets, cells_lo, base)));
+        .for_each(|(items, offsets, cells_lo, base)| sort_bucket(items, &key, (offsets, cells_lo, base)));
     offsets
 }
 
@@ -162,14 +160,14 @@ impl Buckets {
     }
 }
 
-/// American flag sort: move every item (with its input index and bucket) into its bucket, in
-/// place; `starts` are the buckets' first items. Every swap puts one item where it belongs.
+/// American flag sort: move every item (with its bucket) into its bucket, in place; `starts`
+/// are the buckets' first items. Every swap puts one item where it belongs.
 ///
 /// Each swap depends on the one before (the item swapped in decides where the next goes), so
-/// the walk would wait for memory at every bucket's next cache line; reading the bucket and
-/// the index [`AHEAD`] places further on in the same bucket, whose result nothing waits for,
-/// fetches those lines early.
-fn distribute<T>(items: &mut [T], index: &mut [u32], bucket: &mut [u16], starts: &[usize]) {
+/// the walk would wait for memory at every bucket's next cache line; reading the bucket
+/// [`AHEAD`] places further on in the same bucket, whose result nothing waits for, fetches
+/// that line early.
+fn distribute<T>(items: &mut [T], bucket: &mut [u16], starts: &[usize]) {
     let mut next: Vec<usize> = starts[..starts.len() - 1].to_vec();
     let last = items.len() - 1;
     let mut fetched = 0u32;
@@ -184,9 +182,8 @@ fn distribute<T>(items: &mut [T], index: &mut [u32], bucket: &mut [u16], starts:
                 let j = next[to];
                 next[to] += 1;
                 let ahead = (j + AHEAD).min(last);
-                fetched ^= bucket[ahead] as u32 ^ index[ahead];
+                fetched ^= bucket[ahead] as u32;
                 items.swap(i, j);
-                index.swap(i, j);
                 bucket.swap(i, j);
             }
         }
@@ -197,17 +194,11 @@ fn distribute<T>(items: &mut [T], index: &mut [u32], bucket: &mut [u16], starts:
 /// How far ahead in a bucket [`distribute`] reads (items).
 const AHEAD: usize = 16;
 
-/// Sort one bucket by (cell, input index), the order a stable counting sort gives: its items
-/// in input order, then counted and placed by cell. `offsets` are the bucket's cells' (the
-/// first is `cells_lo`), filled with absolute starts (the bucket's first item is `base`).
-fn sort_bucket<T: Clone, K: Fn(&T) -> u32>(items: &mut [T], index: &[u32], key: &K, at: (&mut [u32], u32, u32)) {
+/// Counting sort of one bucket by cell, stable (keeps the distribution's order inside a cell).
+/// `offsets` are the bucket's cells' (the first is `cells_lo`), filled with absolute starts
+/// (the bucket's first item is `base`).
+fn sort_bucket<T: Clone, K: Fn(&T) -> u32>(items: &mut [T], key: &K, at: (&mut [u32], u32, u32)) {
     let (offsets, cells_lo, base) = at;
-    let mut order: Vec<u64> = index
-        .iter()
-        .enumerate()
-        .map(|(l, &i)| ((i as u64) << 32) | l as u64)
-        .collect();
-    order.sort_unstable();
     for t in items.iter() {
         offsets[(key(t) - cells_lo) as usize] += 1;
     }
@@ -218,8 +209,7 @@ fn sort_bucket<T: Clone, K: Fn(&T) -> u32>(items: &mut [T], index: &[u32], key: 
         sum += c;
     }
     let src = items.to_vec();
-    for &o in &order {
-        let t = &src[o as u32 as usize];
+    for t in &src {
         let slot = &mut offsets[(key(t) - cells_lo) as usize];
         items[*slot as usize] = t.clone();
         *slot += 1;
@@ -238,14 +228,28 @@ mod tests {
     use super::*;
     use crate::sampling::Rng;
 
-    /// `sort_by_cell` against the standard library's stable sort, with the offsets checked.
+    /// `sort_by_cell`: sorted by cell, the same items, the offsets right, and the same order on
+    /// one thread as on all of them.
     fn check(keys: Vec<u32>, ncells: usize) {
         let items: Vec<(u32, u32)> = keys.iter().enumerate().map(|(i, &k)| (k, i as u32)).collect();
         let mut expected = items.clone();
         expected.sort_by_key(|t| t.0);
-        let mut sorted = items;
+        let mut sorted = items.clone();
         let offsets = sort_by_cell(&mut sorted, |t| t.0, ncells);
-        assert!(sorted == expected, "not the stable order ({} items)", keys.len());
+        assert!(sorted.windows(2).all(|w| w[0].0 <= w[1].0), "not sorted by cell");
+        let mut same = sorted.clone();
+        same.sort();
+        assert!(same == expected, "not the same items ({} items)", keys.len());
+        let one_thread = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .expect("a thread");
+        let mut alone = items;
+        let alone_offsets = one_thread.install(|| sort_by_cell(&mut alone, |t| t.0, ncells));
+        assert!(
+            alone == sorted && alone_offsets == offsets,
+            "the order depends on the threads"
+        );
         assert_eq!(offsets.len(), ncells + 1);
         for c in 0..ncells {
             let run = &sorted[offsets[c] as usize..offsets[c + 1] as usize];
@@ -255,7 +259,7 @@ mod tests {
     }
 
     #[test]
-    fn in_place_sort_is_the_stable_counting_sort() {
+    fn in_place_sort_groups_cells_whatever_the_threads() {
         let mut rng = Rng::keyed(15, 0, 0);
         // Uniform keys over many cells (many buckets), over few cells (runs of equal keys),
         // and skewed: half of the items in one cell, the rest spread.
