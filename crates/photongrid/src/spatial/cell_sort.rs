@@ -161,13 +161,15 @@ impl Buckets {
 }
 
 /// American flag sort: move every item (with its bucket) into its bucket, in place; `starts`
-/// are the buckets' first items. Every swap puts one item where it belongs.
+/// are the buckets' first items. Items are carried along their cycles (one read and one write
+/// per move; swapping through the cycle's first slot cost a fifth more) and each move puts
+/// one item where it belongs.
 ///
-/// Each swap depends on the one before (the item swapped in decides where the next goes), so
+/// Each move depends on the one before (the item displaced decides where the next goes), so
 /// the walk would wait for memory at every bucket's next cache line; reading the bucket
 /// [`AHEAD`] places further on in the same bucket, whose result nothing waits for, fetches
 /// that line early.
-fn distribute<T>(items: &mut [T], bucket: &mut [u16], starts: &[usize]) {
+fn distribute<T: Clone>(items: &mut [T], bucket: &mut [u16], starts: &[usize]) {
     let mut next: Vec<usize> = starts[..starts.len() - 1].to_vec();
     let last = items.len() - 1;
     let mut fetched = 0u32;
@@ -175,16 +177,32 @@ fn distribute<T>(items: &mut [T], bucket: &mut [u16], starts: &[usize]) {
         let end = starts[b + 1];
         while next[b] < end {
             let i = next[b];
-            let to = bucket[i] as usize;
+            let mut to = bucket[i] as usize;
             if to == b {
                 next[b] += 1;
-            } else {
+                continue;
+            }
+            // Carry the item out of place along its cycle: each step writes it where it
+            // belongs and picks up the item it displaces, until one belongs at `i`.
+            let mut carry = items[i].clone();
+            loop {
+                while bucket[next[to]] as usize == to {
+                    next[to] += 1; // already in place (there is room: `carry` belongs here)
+                }
                 let j = next[to];
                 next[to] += 1;
                 let ahead = (j + AHEAD).min(last);
                 fetched ^= bucket[ahead] as u32;
-                items.swap(i, j);
-                bucket.swap(i, j);
+                std::mem::swap(&mut items[j], &mut carry);
+                let displaced = bucket[j] as usize;
+                bucket[j] = to as u16;
+                to = displaced;
+                if to == b {
+                    items[i] = carry;
+                    bucket[i] = b as u16;
+                    next[b] += 1;
+                    break;
+                }
             }
         }
     }
