@@ -63,9 +63,10 @@ struct Pass {
 }
 
 /// Trace `pass.paths` paths in parallel chunks, appending their photons to `all` in path
-/// order; photon `i` uses its own keyed random stream. The chunks run in waves of [`WAVE`]
-/// whose photons are appended before the next wave starts: the photons exist once, plus one
-/// wave's buffers (collecting every chunk first held them twice).
+/// order; photon `i` uses its own keyed random stream. The chunks run in waves of [`WAVE`]; a
+/// wave's photons are appended while the next wave is traced (one thread appends, then joins
+/// the tracing): the photons exist once, plus two waves' buffers (collecting every chunk first
+/// held them twice), and no thread waits for the appending.
 fn run_pass(
     scene: &Scene,
     accel: &impl ClosestHit,
@@ -77,30 +78,35 @@ fn run_pass(
 ) {
     let n = pass.paths;
     let chunks = n.div_ceil(CHUNK);
-    for wave in (0..chunks).step_by(WAVE) {
-        let outs: Vec<Out> = (wave..(wave + WAVE).min(chunks))
+    let trace_chunk = |c: usize| {
+        let mut out = Out {
+            photons: Vec::with_capacity(CHUNK * 2),
+            triangles: Vec::new(),
+            record: settings.record_triangles,
+            rays: 0,
+            kinds: PhotonStats::default(),
+        };
+        let end = ((c + 1) * CHUNK).min(n);
+        for i in c * CHUNK..end {
+            let mut rng = Rng::keyed(settings.seed, pass.stream, i as u64);
+            if let Some((e, p_light)) = emit(&mut rng) {
+                let power = e.flux / (p_light * n as f32);
+                let ray = (e.origin, e.direction, power);
+                trace_path(scene, accel, settings, pass.kind, ray, &mut rng, &mut out);
+            }
+        }
+        progress(end - c * CHUNK);
+        out
+    };
+    let trace_wave = |wave: usize| -> Vec<Out> {
+        (wave..(wave + WAVE).min(chunks))
             .into_par_iter()
-            .map(|c| {
-                let mut out = Out {
-                    photons: Vec::with_capacity(CHUNK * 2),
-                    triangles: Vec::new(),
-                    record: settings.record_triangles,
-                    rays: 0,
-                    kinds: PhotonStats::default(),
-                };
-                let end = ((c + 1) * CHUNK).min(n);
-                for i in c * CHUNK..end {
-                    let mut rng = Rng::keyed(settings.seed, pass.stream, i as u64);
-                    if let Some((e, p_light)) = emit(&mut rng) {
-                        let power = e.flux / (p_light * n as f32);
-                        let ray = (e.origin, e.direction, power);
-                        trace_path(scene, accel, settings, pass.kind, ray, &mut rng, &mut out);
-                    }
-                }
-                progress(end - c * CHUNK);
-                out
-            })
-            .collect();
+            .map(trace_chunk)
+            .collect()
+    };
+    let mut pending = Vec::new();
+    for wave in (0..chunks).step_by(WAVE) {
+        let (outs, ()) = rayon::join(|| trace_wave(wave), || all.append(pending));
         if wave == 0 {
             // Room for the whole pass, from the first wave's photons per path plus an eighth:
             // growing by doubling copied the photons up to twice more (pages never written
@@ -113,11 +119,19 @@ fn run_pass(
                 all.triangles.reserve(expected);
             }
         }
+        pending = outs;
+    }
+    all.append(pending);
+}
+
+impl PassOutput {
+    /// Append chunks' outputs, in order.
+    fn append(&mut self, outs: Vec<Out>) {
         for c in outs {
-            all.photons.extend_from_slice(&c.photons);
-            all.triangles.extend_from_slice(&c.triangles);
-            all.rays += c.rays;
-            all.kinds.add(&c.kinds);
+            self.photons.extend_from_slice(&c.photons);
+            self.triangles.extend_from_slice(&c.triangles);
+            self.rays += c.rays;
+            self.kinds.add(&c.kinds);
         }
     }
 }
