@@ -11,7 +11,7 @@ out=${1:-out/time_budget}; shift || true
 times=${1:-"5 15 60"}; shift || true
 here=$(cd "$(dirname "$0")/.." && pwd)
 S=${SCENES:-$here/../shared/scenes}
-bin=$here/target/release/photongrid
+bin=${PHOTONGRID_BIN:-$here/target/release/photongrid}  # another build: PHOTONGRID_BIN=...
 mkdir -p "$out"
 : > "$out/time_budget.jsonl"
 printf "%-22s %5s %7s %4s %6s %-50s %7s %7s %8s\n" camera T wall ok passes "passes (photons/spp/gather)" ratio block pixel
