@@ -84,7 +84,7 @@ impl Photon {
 
     /// Whether the photon's surface faces the way `normal` does ([`crate::estimate::photon_map::faces`]),
     /// without normalising the decoded normal: the counting of every photon into the grids
-    /// asks this.
+    /// and the photon map's kNN filter ask this for every photon they meet.
     pub fn faces(&self, normal: Vec3) -> bool {
         let v = self.normal_direction();
         let d = v.dot(normal);
