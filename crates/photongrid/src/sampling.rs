@@ -81,15 +81,18 @@ pub mod stream {
     pub const PIXEL: u64 = 3;
     /// Per-pixel scrambling of the emission-only rays at emitter edges.
     pub const EDGE_RAYS: u64 = 5;
+    /// Per-pixel scrambling of the final-gather directions.
+    pub const GATHER: u64 = 6;
 }
 
-/// Position in [0,1)² of sample `index` of a pixel: the first two dimensions of the Sobol
-/// sequence, Owen-scrambled by the pixel's `seed` (Burley 2020, "Practical Hash-based Owen
-/// Scrambling"). Every power-of-two run of samples starting at 0 is a (0, m, 2)-net, so a pixel's
-/// samples stay stratified across progressive passes (pass `p` continues at the index where
-/// pass `p − 1` stopped) and an edge in any direction is anti-aliased far better than by
-/// independent jitters. Indices wrap at 2³² (the sequence then starts again).
-pub fn pixel_sample(index: u32, seed: u64) -> Vec2 {
+/// Point `index` in [0,1)² of a pixel's sequence (film positions, gather directions): the first
+/// two dimensions of the Sobol sequence, Owen-scrambled by the pixel's `seed` (Burley 2020,
+/// "Practical Hash-based Owen Scrambling"). Every power-of-two run of samples starting at 0 is a
+/// (0, m, 2)-net, so a pixel's samples stay stratified across progressive passes (pass `p`
+/// continues at the index where pass `p − 1` stopped) and an edge in any direction is
+/// anti-aliased far better than by independent jitters. Indices wrap at 2³² (the sequence then
+/// starts again).
+pub fn owen_sobol(index: u32, seed: u64) -> Vec2 {
     let x = owen_scramble(index.reverse_bits(), seed as u32);
     let y = owen_scramble(sobol_second_dimension(index), (seed >> 32) as u32);
     let unit = |v: u32| (v >> 8) as f32 * (1.0 / 16_777_216.0);
@@ -302,7 +305,7 @@ mod tests {
     fn cells(from: u32, to: u32, seed: u64, nx: u32, ny: u32) -> Vec<u32> {
         let mut c: Vec<u32> = (from..to)
             .map(|i| {
-                let p = pixel_sample(i, seed);
+                let p = owen_sobol(i, seed);
                 (p.y * ny as f32) as u32 * nx + (p.x * nx as f32) as u32
             })
             .collect();
@@ -340,8 +343,8 @@ mod tests {
 
     #[test]
     fn pixel_samples_differ_between_pixels_and_stay_in_the_unit_square() {
-        let a: Vec<Vec2> = (0..64).map(|i| pixel_sample(i, 1)).collect();
-        let b: Vec<Vec2> = (0..64).map(|i| pixel_sample(i, 2)).collect();
+        let a: Vec<Vec2> = (0..64).map(|i| owen_sobol(i, 1)).collect();
+        let b: Vec<Vec2> = (0..64).map(|i| owen_sobol(i, 2)).collect();
         assert_ne!(a, b);
         assert!(a
             .iter()

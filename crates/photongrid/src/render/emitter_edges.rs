@@ -81,13 +81,13 @@ fn emission_along(pass: &CameraPass<'_>, film: Vec2) -> Rgb {
 
 /// The mean emission seen by [`EDGE_RAYS`] camera rays through pixel (x, y) for sample `index`
 /// of its sequence: positions from their own scrambled sequence, continued across samples and
-/// passes as the samples' own ([`sampling::pixel_sample`]).
+/// passes as the samples' own ([`sampling::owen_sobol`]).
 pub fn edge_emission(pass: &CameraPass<'_>, x: usize, y: usize, index: u32) -> Rgb {
     let pixel = (y * pass.settings.width as usize + x) as u64;
     let scramble = sampling::pixel_scramble(pass.settings.sequence_seed, stream::EDGE_RAYS, pixel);
     let first = index.wrapping_mul(EDGE_RAYS);
     let sum = (0..EDGE_RAYS).fold(Rgb::ZERO, |s, k| {
-        let film = Vec2::new(x as f32, y as f32) + sampling::pixel_sample(first.wrapping_add(k), scramble);
+        let film = Vec2::new(x as f32, y as f32) + sampling::owen_sobol(first.wrapping_add(k), scramble);
         s + emission_along(pass, film)
     });
     sum / EDGE_RAYS as f32

@@ -7,7 +7,7 @@ use crate::bsdf::{self, GltfPoint};
 use crate::sampling::{self, Rng};
 use crate::surface::SurfacePoint;
 use crate::Rgb;
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 use std::f32::consts::PI;
 
 /// Where final-gather directions come from.
@@ -37,16 +37,16 @@ pub(super) struct LobeRay {
 }
 
 impl GatherLobe<'_> {
-    /// A direction drawn from this lobe at `sp` (None where it would leave below the
-    /// geometric surface).
-    pub fn sample(&self, sp: &SurfacePoint, rng: &mut Rng) -> Option<LobeRay> {
+    /// A direction drawn from this lobe at `sp` by the point `u` (a glTF lobe's choice among
+    /// its lobes by `rng`); None where it would leave below the geometric surface.
+    pub fn sample(&self, sp: &SurfacePoint, u: Vec2, rng: &mut Rng) -> Option<LobeRay> {
         match self {
             GatherLobe::Cosine => {
-                let d = sampling::cosine_hemisphere(rng.uniform2(), sp.facing_shading_normal);
+                let d = sampling::cosine_hemisphere(u, sp.facing_shading_normal);
                 (d.dot(sp.facing_normal) > 0.0).then(|| self.eval(sp, d))
             }
             GatherLobe::Stored(g) => {
-                let s = g.sample(g.stored, rng.uniform(), rng.uniform2())?;
+                let s = g.sample(g.stored, rng.uniform(), u)?;
                 Some(LobeRay {
                     direction: s.direction,
                     cos: s.direction.dot(sp.facing_shading_normal),
