@@ -84,7 +84,16 @@ impl GatherLobe<'_> {
         let (spread, aimed) = (rays.0 as f32, rays.1 as f32);
         match self {
             // The cosine density cos/π, written with π moved to the aim's side.
-            GatherLobe::Cosine => Rgb::splat(r.bump * r.cos / (spread * r.cos + aimed * PI * pdf_aimed)),
+            // A direction on the horizon (a sample point on the disk's rim: u = 0 exactly) has
+            // density 0 and brings nothing (0/0 made the pixel NaN).
+            GatherLobe::Cosine => {
+                let den = spread * r.cos + aimed * PI * pdf_aimed;
+                if den > 0.0 && r.cos > 0.0 {
+                    Rgb::splat(r.bump * r.cos / den)
+                } else {
+                    Rgb::ZERO
+                }
+            }
             GatherLobe::Stored(_) => {
                 let den = spread * r.pdf + aimed * pdf_aimed;
                 if den > 0.0 {
@@ -94,5 +103,31 @@ impl GatherLobe<'_> {
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_direction_on_the_horizon_weighs_nothing_instead_of_nan() {
+        // u.x = 0 exactly (which an Owen-scrambled point, like a random one, can be) maps to
+        // the disk's rim: a direction in the tangent plane, of cosine and density 0.
+        let d = sampling::cosine_hemisphere(Vec2::new(0.0, 0.245), Vec3::Z);
+        assert_eq!(d.z, 0.0);
+        let r = LobeRay {
+            direction: d,
+            cos: d.z,
+            f_cos: Rgb::ZERO,
+            pdf: 0.0,
+            bump: 1.0,
+        };
+        for rays in [(8, 0), (6, 2)] {
+            let w = GatherLobe::Cosine.weight(&r, 0.0, rays);
+            assert!(w.is_finite() && w == Rgb::ZERO, "{w:?}");
+        }
+        let inside = LobeRay { cos: 0.5, ..r };
+        assert_eq!(GatherLobe::Cosine.weight(&inside, 0.0, (8, 0)), Rgb::splat(0.125));
     }
 }
