@@ -91,6 +91,11 @@ pub struct Query {
     pub geometric_normal: Vec3,
     /// The triangle (its plane grid, if any).
     pub triangle: u32,
+    /// Radius of the camera pixel's footprint here (0: not seen by the camera, or not known).
+    /// Off the planes no kernel is made narrower: the photons of a caustic line thinner than
+    /// a pixel would otherwise be counted over discs reaching them from beside the line, more
+    /// than once in total (a kNN disc is not a partition of the light).
+    pub footprint: f32,
 }
 
 /// The grids an estimate may read (those its [`Needs`] asked for).
@@ -250,7 +255,7 @@ impl<'a> Estimator<'a> {
                     let k_max = if gathering { k } else { OFF_PLANE_WIDENING * k };
                     Gather {
                         needs_gathering: gathering,
-                        ..map.adaptive_knn(q.position, q.facing_normal, k_max, buf)
+                        ..map.adaptive_knn(q.position, q.facing_normal, (k_max, q.footprint), buf)
                     }
                 }
             },

@@ -159,8 +159,26 @@ impl PhotonMap {
     /// [`ADAPTIVE_MIN_NEIGHBOURS`], twice as many, … photons and all `k_max`) whose estimate agrees with every narrower one's ([`lepski_agrees`]).
     /// Where the light is flat the disc grows to `k_max` photons (less noise than a fixed k);
     /// across a caustic's edge or a filament it stops at a few (sharp). For surfaces no plane
-    /// grid covers.
-    pub fn adaptive_knn(&self, x: Vec3, normal: Vec3, k_max: usize, buf: &mut KnnBuffer) -> Gather {
+    /// grid covers. A disc narrower than `min_radius` (a camera pixel's footprint) is replaced
+    /// by the disc of that radius: fixed-radius discs spread each photon's power over exactly
+    /// its disc, where kNN discs next to a line of light finer than a pixel count it again and
+    /// again (up to twice the line's power in the pixel holding it).
+    pub fn adaptive_knn(
+        &self,
+        x: Vec3,
+        normal: Vec3,
+        (k_max, min_radius): (usize, f32),
+        buf: &mut KnnBuffer,
+    ) -> Gather {
+        let g = self.adaptive_knn_discs(x, normal, k_max, buf);
+        if g.r2 < min_radius * min_radius {
+            self.within(x, normal, min_radius)
+        } else {
+            g
+        }
+    }
+
+    fn adaptive_knn_discs(&self, x: Vec3, normal: Vec3, k_max: usize, buf: &mut KnnBuffer) -> Gather {
         let r2_search = self
             .grid
             .knn(x, k_max, self.max_radius, |p| self.accepts(p, normal), buf);
@@ -296,7 +314,7 @@ mod tests {
         let (mut se_fixed, mut se_adaptive, mut n, mut widest) = (0.0f32, 0.0f32, 0, 0);
         for i in 0..40 {
             let x = Vec3::new(-0.5 + 0.025 * i as f32, 0.0, 0.1 * (i % 7) as f32 - 0.3);
-            let a = m.adaptive_knn(x, Vec3::Y, 400, &mut buf);
+            let a = m.adaptive_knn(x, Vec3::Y, (400, 0.0), &mut buf);
             widest += (a.count == 400) as usize;
             let k = m.knn(x, Vec3::Y, 100, &mut buf);
             se_fixed += (irradiance(&k) - truth).powi(2);
@@ -334,7 +352,7 @@ mod tests {
         let (mut fixed, mut adaptive, mut n) = (0.0f32, 0.0f32, 0);
         for i in 0..60 {
             let x = Vec3::new(0.0, 0.0, -0.6 + 0.02 * i as f32);
-            adaptive += irradiance(&m.adaptive_knn(x, Vec3::Y, 400, &mut buf));
+            adaptive += irradiance(&m.adaptive_knn(x, Vec3::Y, (400, 0.0), &mut buf));
             fixed += irradiance(&m.knn(x, Vec3::Y, 100, &mut buf));
             n += 1;
         }
@@ -353,11 +371,38 @@ mod tests {
         // Five photons in all.
         let (m, _) = map(1.25, |_| true);
         let mut buf = KnnBuffer::new();
-        let a = m.adaptive_knn(Vec3::ZERO, Vec3::Y, 400, &mut buf);
+        let a = m.adaptive_knn(Vec3::ZERO, Vec3::Y, (400, 0.0), &mut buf);
         let k = m.knn(Vec3::ZERO, Vec3::Y, 400, &mut buf);
         assert!(
             a.count <= ADAPTIVE_MIN_NEIGHBOURS && a.count == k.count && a.r2 == k.r2,
             "{a:?} {k:?}"
         );
+    }
+
+    /// A line of light finer than a pixel: the irradiance integrated across it is the line's
+    /// power per unit length when no disc is narrower than the pixel's footprint, and far more
+    /// with kNN discs (each point beside the line counts the line's photons again).
+    #[test]
+    fn a_line_finer_than_the_footprint_keeps_its_power() {
+        let mut rng = Rng::keyed(3, 0, 0);
+        let n = 200_000;
+        // 1 W over 2 m of a line 1 mm wide: 0.5 W/m.
+        let photons: Vec<Photon> = (0..n)
+            .map(|_| photon((rng.uniform() - 0.5) * 1e-3, rng.uniform() * 2.0 - 1.0, 1.0 / n as f32))
+            .collect();
+        let m = PhotonMap::build(photons, 100, 0.002, 0.5);
+        let mut buf = KnnBuffer::new();
+        let across = |footprint: f32, buf: &mut KnnBuffer| -> f32 {
+            let dx = 2.5e-4;
+            (-200..=200)
+                .map(|i| {
+                    irradiance(&m.adaptive_knn(Vec3::new(i as f32 * dx, 0.0, 0.0), Vec3::Y, (100, footprint), buf)) * dx
+                })
+                .sum()
+        };
+        let floored = across(5e-3, &mut buf);
+        let knn = across(0.0, &mut buf);
+        assert!((floored / 0.5 - 1.0).abs() < 0.03, "with the footprint: {floored} W/m");
+        assert!(knn / 0.5 > 1.3, "kNN discs: {knn} W/m");
     }
 }

@@ -83,7 +83,10 @@ impl Tracer<'_> {
             Some(s) => s.weight,
             None => Rgb::ZERO,
         };
-        let e = self.photons.estimator.gather(&super::query_at(sp), &mut self.knn);
+        let e = self
+            .photons
+            .estimator
+            .gather(&super::query_at(sp, self.footprint), &mut self.knn);
         let mut l = density_radiance(albedo, e.flux, e.r2);
         if e.needs_gathering && self.settings.gather > 0 {
             // A glossy stored lobe reflects gathered light as its BSDF says (not gated on the

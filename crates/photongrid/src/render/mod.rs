@@ -92,6 +92,11 @@ struct Tracer<'a> {
     aim: Aim,
     /// Where the camera sample in hand draws its gather directions.
     gather_points: GatherPoints,
+    /// The camera, for the footprint of its pixels.
+    camera: &'a Camera,
+    /// The pixel footprint's radius at the surface being shaded ([`Query::footprint`]; 0 past
+    /// a mirror or glass, where it is not tracked).
+    footprint: f32,
 }
 
 /// The final-gather directions of one camera sample: points `base..base + gather` of its
@@ -137,6 +142,8 @@ impl<'a> Tracer<'a> {
             skip_seen_emission: false,
             aim: Aim::default(),
             gather_points: GatherPoints::default(),
+            camera: pass.camera,
+            footprint: 0.0,
         }
     }
 }
@@ -292,13 +299,14 @@ pub(crate) fn seen_emission(scene: &Scene, sp: &SurfacePoint) -> Rgb {
     }
 }
 
-/// The photon-estimate query at a surface point.
-fn query_at(sp: &SurfacePoint) -> Query {
+/// The photon-estimate query at a surface point whose pixel footprint has radius `footprint`.
+fn query_at(sp: &SurfacePoint, footprint: f32) -> Query {
     Query {
         position: sp.position,
         facing_normal: sp.facing_normal,
         geometric_normal: sp.geometric_normal,
         triangle: sp.triangle,
+        footprint,
     }
 }
 
@@ -327,6 +335,11 @@ impl Tracer<'_> {
         if depth == 0 {
             first_hit_aov(aov, &sp, hit.t);
         }
+        self.footprint = if depth == 0 {
+            self.camera.pixel_footprint(hit.t, self.settings.height)
+        } else {
+            0.0
+        };
         let mut l = Rgb::ZERO;
         if !(depth == 0 && self.skip_seen_emission) {
             l += seen_emission(self.scene, &sp) * self.emission_weight(mis, &sp, &hit, d);
@@ -370,13 +383,10 @@ impl Tracer<'_> {
         if self.settings.direct == DirectLighting::ShadowRays {
             l += bsdf::lambert(albedo) * self.direct_irradiance(sp, rng);
         }
-        let query = Query {
-            position: sp.position,
-            facing_normal: sp.facing_normal,
-            geometric_normal: sp.geometric_normal,
-            triangle: sp.triangle,
-        };
-        let g = self.photons.estimator.gather(&query, &mut self.knn);
+        let g = self
+            .photons
+            .estimator
+            .gather(&query_at(sp, self.footprint), &mut self.knn);
         // Photons carry no direction here: a normal map's shadowing as for even light.
         l += density_radiance(albedo * bsdf::bump::mean_sample(sp, rng), g.flux, g.r2);
         if g.needs_gathering && self.settings.gather > 0 {

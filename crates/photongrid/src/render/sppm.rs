@@ -169,7 +169,7 @@ impl Tracer<'_> {
                 if self.settings.direct == DirectLighting::ShadowRays {
                     l += beta * f * self.direct_irradiance(&sp, rng);
                 }
-                let query = super::query_at(&sp);
+                let query = super::query_at(&sp, 0.0);
                 return (
                     l,
                     Some(VisiblePoint {
@@ -182,7 +182,7 @@ impl Tracer<'_> {
                 match self.sppm_gltf(m, &sp, (d, hit.t), rng) {
                     SppmStep::Visible { direct, weight } => {
                         let vp = VisiblePoint {
-                            query: super::query_at(&sp),
+                            query: super::query_at(&sp, 0.0),
                             weight: beta * weight,
                         };
                         return (l + beta * direct, Some(vp));

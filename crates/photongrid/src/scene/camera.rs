@@ -66,6 +66,16 @@ impl Camera {
         self.to_world.transform_vector3(Vec3::NEG_Z).normalize()
     }
 
+    /// Radius of a pixel's footprint `t` metres along a ray of a `height`-line image, on a
+    /// surface facing the camera: half a pixel's width there.
+    pub fn pixel_footprint(&self, t: f32, height: u32) -> f32 {
+        let h = height.max(1) as f32;
+        match self.projection {
+            Projection::Perspective { yfov, .. } => t * (0.5 * yfov).tan() / h,
+            Projection::Orthographic { ymag, .. } => ymag / h,
+        }
+    }
+
     /// World-space ray (origin, unit direction) through film position `film` in pixels
     /// (x right, y down) of a `width × height` image.
     pub fn generate_ray(&self, film: Vec2, width: u32, height: u32) -> (Vec3, Vec3) {
