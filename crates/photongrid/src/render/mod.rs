@@ -264,11 +264,10 @@ fn render_sweep(
                 }
                 for x in 0..w {
                     let (o, d, mut rng) = camera_ray(camera, settings, x, y, s);
-                    let pixel = (y * w + x) as u64;
                     tracer.gather_points = GatherPoints::of(
                         settings.sequence_seed,
                         settings.gather,
-                        pixel,
+                        pixel_index(settings, x, y),
                         settings.first_sample.wrapping_add(s),
                     );
                     let mut first = (s == 0).then_some(&mut aovs[x]);
@@ -310,12 +309,17 @@ fn query_at(sp: &SurfacePoint, footprint: f32) -> Query {
     }
 }
 
+/// The key of pixel (x, y) in the per-pixel streams and sequences.
+fn pixel_index(settings: &RenderSettings, x: usize, y: usize) -> u64 {
+    (y * settings.width as usize + x) as u64
+}
+
 /// The ray of sample `s` of this pass at pixel (x, y), and the random stream the rest of its
 /// path uses (keyed by pixel and sample: independent of threads).
 fn camera_ray(camera: &Camera, settings: &RenderSettings, x: usize, y: usize, s: u32) -> (Vec3, Vec3, Rng) {
     let (w, h) = (settings.width, settings.height);
     let spp = settings.spp.max(1) as u64;
-    let pixel = (y * w as usize + x) as u64;
+    let pixel = pixel_index(settings, x, y);
     let rng = Rng::keyed(settings.seed, stream::CAMERA, pixel * spp + s as u64);
     let scramble = sampling::pixel_scramble(settings.sequence_seed, stream::PIXEL, pixel);
     let index = settings.first_sample.wrapping_add(s);
