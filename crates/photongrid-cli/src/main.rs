@@ -666,6 +666,20 @@ fn dump_plane_grids(dir: &Path, g: &photongrid::grid::PlaneGrids) -> Result<()> 
 fn dump_multiscale(dir: &Path, g: &photongrid::grid::multiscale::MultiscaleGrids) -> Result<()> {
     use photongrid::grid::multiscale::{CAUSTIC, DIRECT, INDIRECT};
     std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
+    // Each plane's frame, to place its textures in the scene: texel (x, y) of a field of
+    // w × h covers origin + u·(x/w)·size_u + v·(y/h)·size_v (row y of the image).
+    let frames: Vec<_> = g
+        .textures
+        .iter()
+        .map(|tex| {
+            let p = &tex[INDIRECT].plane;
+            serde_json::json!({"origin": p.origin.to_array(), "u": p.u.to_array(), "v": p.v.to_array(),
+                "size_u": p.size_u, "size_v": p.size_v, "normal": p.normal.to_array()})
+        })
+        .collect();
+    let path = dir.join("planes.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&frames)?)
+        .with_context(|| format!("{}: cannot write", path.display()))?;
     for (i, tex) in g.textures.iter().enumerate() {
         for (layer, name) in [(CAUSTIC, "caustic"), (INDIRECT, "indirect"), (DIRECT, "direct")] {
             let t = &tex[layer];

@@ -7,7 +7,7 @@
 use crate::accel::Accel;
 use crate::estimate::{Accumulation, Estimator, Gammas, IrradianceCache, PassGrids, PhotonMap};
 use crate::film::Film;
-use crate::grid::multiscale::{MultiscaleGrids, MultiscaleParams, Probes, DIRECT, INDIRECT};
+use crate::grid::multiscale::{Emitted, MultiscaleGrids, MultiscaleParams, Probes, DIRECT, INDIRECT};
 use crate::grid::PlaneGrids;
 use crate::grid::{GridParams, Grids};
 use crate::photon::{trace_photons, Photon, PhotonKind, PhotonStats, TraceSettings};
@@ -879,9 +879,13 @@ impl GridState {
         triangles: &[u32],
     ) {
         if settings.method.needs().multiscale {
+            let emitted = Some(Emitted {
+                global: settings.photons,
+                caustic: caustic_photons(scene, settings),
+            });
             let g = match self.multiscale.as_mut() {
                 Some(g) => {
-                    g.add(photons, triangles);
+                    g.add(photons, triangles, emitted);
                     g
                 }
                 None => {
@@ -897,7 +901,7 @@ impl GridState {
                         buried: &|p, n| inside_solid(scene, accel, p, n),
                         clearance: &|p, n| clearance(scene, accel, p, n, params.max_radius),
                     };
-                    let g = MultiscaleGrids::build(set, &tris, photons, triangles, &params, &probes);
+                    let g = MultiscaleGrids::build(set, &tris, photons, triangles, &params, &probes, emitted);
                     for line in g.describe() {
                         tracing::info!("{line}");
                     }

@@ -184,6 +184,22 @@ pub const INTERIOR_COVERAGE: f32 = 0.9;
 /// more block error than gathering's grain (measured on cornell_glass, docs/multiscale.md).
 const MIN_INDIRECT_PHOTONS: f32 = 64.0;
 
+/// The most relative noise, as a share of all the light at the point, that the photons'
+/// indirect estimate may bring where final gathering could supply it instead. Its blotches
+/// are a kernel wide and do not average out over pixels or passes, while gathering's
+/// grain does (docs/time_budget.md, "Gathering where the photons' blotches would show").
+const INDIRECT_NOISE: f32 = 0.01;
+
+/// Whether a kernel's `photons` (over all passes) make its `indirect` irradiance (luminance)
+/// quiet enough beside the point's `other` light (direct and caustic): its relative noise
+/// 1/√photons, times indirect light's share of the point's light, at most [`INDIRECT_NOISE`],
+/// and at least [`MIN_INDIRECT_PHOTONS`].
+pub fn photons_suffice(indirect: f32, other: f32, photons: f32) -> bool {
+    let total = indirect + other;
+    let share = if total > 0.0 { indirect / total } else { 1.0 };
+    photons >= MIN_INDIRECT_PHOTONS && share * share <= INDIRECT_NOISE * INDIRECT_NOISE * photons
+}
+
 impl MultiscaleGrids {
     /// One layer's estimate at `p` of the plane texture `tex`. No kernel of global light reaches
     /// farther than the open space in front of the surface it covers: light next to a shelf
@@ -194,7 +210,7 @@ impl MultiscaleGrids {
         let within = t
             .scales(p)
             .take_while(|s| s.level == 0 || t.kernel_reach(s.level) <= self.max_radius.min(s.texel.clearance));
-        choose_scale(within, gamma.of(layer), floor, self.passes.max(1) as f32)
+        choose_scale(within, gamma.of(layer), floor, self.passes_of(layer))
     }
 
     /// One layer's estimate at `p` from kernels lying (almost) wholly on the plane and no
@@ -214,7 +230,7 @@ impl MultiscaleGrids {
             .take_while(|s| s.level == 0 || t.kernel_reach(s.level) <= self.max_radius)
             .take_while(|s| s.texel.area >= INTERIOR_COVERAGE * t.kernel_area(s.level))
             .take_while(|s| t.kernel_reach(s.level) <= s.texel.clearance);
-        choose_scale(inside, gamma.of(layer), floor, self.passes.max(1) as f32)
+        choose_scale(inside, gamma.of(layer), floor, self.passes_of(layer))
     }
 
     /// Total irradiance (every layer) at a point on a plane, for final-gather rays: the
@@ -237,6 +253,15 @@ impl MultiscaleGrids {
                 })
                 .sum(),
         )
+    }
+
+    /// One layer's resolved irradiance at `p` (the layer's estimate where not resolved).
+    pub fn resolved_layer(&self, tex: &[LayerTexture], l: usize, p: Vec3) -> Rgb {
+        let (gx, gy) = tex[l].plane.grid_coords(p);
+        match &tex[l].resolved {
+            Some(r) => r.lookup(gx, gy),
+            None => Rgb::ZERO,
+        }
     }
 
     /// Resolve every layer's estimate at the texel centres of the finest pyramid level with
@@ -306,8 +331,9 @@ pub fn gather(grids: &MultiscaleGrids, q: &Query, gamma: Gammas, direct: bool, g
         area = area.max(l.area);
         count += l.count;
     };
-    if let Some(c) = grids.layer_estimate(tex, CAUSTIC, q.position, gamma) {
-        add(&c);
+    let caustic = grids.layer_estimate(tex, CAUSTIC, q.position, gamma);
+    if let Some(c) = &caustic {
+        add(c);
     }
     if direct {
         if let Some(d) = grids.layer_estimate(tex, DIRECT, q.position, gamma) {
@@ -319,8 +345,20 @@ pub fn gather(grids: &MultiscaleGrids, q: &Query, gamma: Gammas, direct: bool, g
         // kernel on the plane holds enough of them; elsewhere (edges, corners, dim places)
         // gathering supplies indirect light.
         let i = grids.interior_estimate(tex, INDIRECT, q.position, gamma);
-        let passes = grids.passes.max(1) as f32;
-        let enough = i.is_some_and(|i| i.count * passes >= MIN_INDIRECT_PHOTONS);
+        let passes = grids.passes_of(INDIRECT);
+        let enough = i.is_some_and(|i| {
+            let direct_light = if direct {
+                Rgb::ZERO
+            } else {
+                grids.resolved_layer(tex, DIRECT, q.position)
+            };
+            let caustic_light = caustic.map_or(Rgb::ZERO, |c| c.irradiance);
+            photons_suffice(
+                crate::luminance(i.irradiance),
+                crate::luminance(direct_light + caustic_light),
+                i.count * passes,
+            )
+        });
         (i.filter(|_| enough), !enough)
     } else {
         (grids.layer_estimate(tex, INDIRECT, q.position, gamma), false)
@@ -354,6 +392,22 @@ mod tests {
                 ..Texel::default()
             },
         }
+    }
+
+    #[test]
+    fn the_photons_indirect_estimate_needs_more_photons_where_it_is_more_of_the_light() {
+        let n = 1.0 / (INDIRECT_NOISE * INDIRECT_NOISE);
+        // Only indirect light: 1/√N at most INDIRECT_NOISE.
+        assert!(photons_suffice(1.0, 0.0, n));
+        assert!(!photons_suffice(1.0, 0.0, 0.9 * n));
+        // A tenth of the light: a hundredth of the photons.
+        assert!(photons_suffice(0.1, 0.9, 0.01 * n * 1.001));
+        assert!(!photons_suffice(0.1, 0.9, 0.009 * n));
+        // Never below the floor, however little of the light it is.
+        assert!(!photons_suffice(1e-4, 1.0, MIN_INDIRECT_PHOTONS - 1.0));
+        assert!(photons_suffice(1e-4, 1.0, MIN_INDIRECT_PHOTONS));
+        // No light at all: as if all of it were indirect.
+        assert!(!photons_suffice(0.0, 0.0, 0.5 * n));
     }
 
     #[test]
@@ -413,7 +467,7 @@ mod tests {
             max_radius: 0.5,
             ..MultiscaleParams::default()
         };
-        MultiscaleGrids::build(set, &tris, &photons, &tri, &params, &probes)
+        MultiscaleGrids::build(set, &tris, &photons, &tri, &params, &probes, None)
     }
 
     /// A field rising linearly with x, sampled by photons on a 2 m square: at the square's

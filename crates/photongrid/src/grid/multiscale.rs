@@ -545,8 +545,15 @@ pub struct MultiscaleGrids {
     pub set: PlaneSet,
     /// Per plane (same order as `set.planes`), per layer.
     pub textures: Vec<[LayerTexture; LAYERS]>,
-    /// Passes accumulated: the flux of each pass is an unbiased estimate, so sums divide by it.
+    /// Passes accumulated.
     pub passes: u32,
+    /// Per layer, the passes' photons relative to the first pass's, summed: each pass's
+    /// flux is counted times its own share ([`Emitted::relative_to`]) and the sums divide by
+    /// this, so every photon weighs the same whatever the size of its pass and a small last
+    /// pass smooths the estimate instead of adding its larger noise at a full pass's weight.
+    pub pass_weight: [f32; LAYERS],
+    /// The photons the first pass emitted: what later passes are weighed against.
+    reference: Option<Emitted>,
     /// Mean photon power (luminance) per layer over the photons counted, per pass: the
     /// variance floor of an empty kernel (one photon's worth of uncertainty).
     pub mean_power: [f32; LAYERS],
@@ -563,6 +570,30 @@ pub struct MultiscaleGrids {
     /// The resolved texels as a distribution for aiming gather rays (built with the resolved
     /// textures, [`MultiscaleGrids::resolve_for_gathering`]).
     pub bright: Option<crate::estimate::bright::BrightTexels>,
+}
+
+/// The photons a pass emitted: global ones (the direct and indirect layers) and those of the
+/// caustic pass (the caustic layer).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Emitted {
+    /// Global photon paths.
+    pub global: usize,
+    /// Caustic photon paths.
+    pub caustic: usize,
+}
+
+impl Emitted {
+    /// Each layer's photons relative to `reference`'s (1 where either emitted none): the
+    /// weight of a pass's flux when its photons each carry `reference / self` times the
+    /// power of the reference pass's.
+    pub fn relative_to(self, reference: Emitted) -> [f32; LAYERS] {
+        let ratio = |n: usize, r: usize| if n > 0 && r > 0 { n as f32 / r as f32 } else { 1.0 };
+        let mut w = [1.0; LAYERS];
+        w[CAUSTIC] = ratio(self.caustic, reference.caustic);
+        w[DIRECT] = ratio(self.global, reference.global);
+        w[INDIRECT] = w[DIRECT];
+        w
+    }
 }
 
 /// What the scene's geometry says about a point `p` of a plane with front normal `n`.
@@ -672,6 +703,7 @@ impl MultiscaleGrids {
         triangles: &[u32],
         params: &MultiscaleParams,
         probes: &Probes<'_>,
+        emitted: Option<Emitted>,
     ) -> Self {
         orient_to_the_light(&mut set, photons, triangles);
         let (dims, cells_grown) = fine_resolutions(&set, photons, triangles, params);
@@ -725,6 +757,8 @@ impl MultiscaleGrids {
             set,
             textures,
             passes: 0,
+            pass_weight: [0.0; LAYERS],
+            reference: emitted,
             mean_power: [0.0; LAYERS],
             plane_power_share: 0.0,
             global_power: 0.0,
@@ -732,26 +766,32 @@ impl MultiscaleGrids {
             cells_grown,
             bright: None,
         };
-        g.add(photons, triangles);
+        g.add(photons, triangles, emitted);
         g
     }
 
-    /// Add one pass's photons and rebuild the pyramids.
-    pub fn add(&mut self, photons: &[Photon], triangles: &[u32]) {
+    /// Add one pass's photons (`emitted` of them; None: as many as the first pass's) and
+    /// rebuild the pyramids.
+    pub fn add(&mut self, photons: &[Photon], triangles: &[u32], emitted: Option<Emitted>) {
         let started = std::time::Instant::now();
+        let weight = match (emitted, self.reference) {
+            (Some(e), Some(r)) => e.relative_to(r),
+            _ => [1.0; LAYERS],
+        };
         let (mut power, mut n) = ([0.0f64; LAYERS], [0usize; LAYERS]);
         for p in photons {
             let layer = layer_of(p.kind());
-            power[layer] += luminance(p.power()) as f64;
+            power[layer] += (luminance(p.power()) * weight[layer]) as f64;
             n[layer] += 1;
         }
-        self.count(photons, triangles);
+        self.count(photons, triangles, weight);
         self.passes += 1;
         self.update_plane_share(power[DIRECT] + power[INDIRECT]);
         for l in 0..LAYERS {
-            // Running mean of the per-pass mean power.
+            // Mean (weighted) photon power over the passes, each weighed by its share.
             let mean = if n[l] > 0 { (power[l] / n[l] as f64) as f32 } else { 0.0 };
-            self.mean_power[l] += (mean - self.mean_power[l]) / self.passes as f32;
+            self.pass_weight[l] += weight[l];
+            self.mean_power[l] += (mean - self.mean_power[l]) * weight[l] / self.pass_weight[l];
         }
         let counted = started.elapsed().as_secs_f64();
         self.textures
@@ -766,8 +806,9 @@ impl MultiscaleGrids {
         );
     }
 
-    /// Count one pass's photons into level 0 of the textures.
-    fn count(&mut self, photons: &[Photon], triangles: &[u32]) {
+    /// Count one pass's photons into level 0 of the textures, each layer's flux times its
+    /// `weight`.
+    fn count(&mut self, photons: &[Photon], triangles: &[u32], weight: [f32; LAYERS]) {
         // Photons land all over the planes, whose texels can take hundreds of megabytes: a
         // chunk of them is read in order (in parallel), its landings are sorted stably into
         // runs of texels, and each texture adds its runs in order. Every texel still sums
@@ -786,7 +827,8 @@ impl MultiscaleGrids {
                     let plane = self.set.plane_of_triangle.get(t as usize).copied().unwrap_or(NO_PLANE);
                     let tex = self.textures.get(plane as usize)?;
                     let layer = layer_of(p.kind());
-                    let l = tex[layer].landing(p)?;
+                    let mut l = tex[layer].landing(p)?;
+                    l.flux = l.flux.map(|f| f * weight[layer]);
                     let run = run_base[plane as usize * LAYERS + layer] + l.cell as usize / COUNT_RUN_CELLS;
                     Some((run as u32, l))
                 })
@@ -865,6 +907,17 @@ impl MultiscaleGrids {
     pub fn plane_facing(&self, triangle: u32, normal: Vec3) -> Option<usize> {
         self.texture_facing(triangle, normal)?;
         self.set.plane_of_triangle.get(triangle as usize).map(|&p| p as usize)
+    }
+
+    /// What `layer`'s flux sums divide by: [`MultiscaleGrids::pass_weight`] (1 before any
+    /// pass).
+    pub fn passes_of(&self, layer: usize) -> f32 {
+        let w = self.pass_weight[layer];
+        if w > 0.0 {
+            w
+        } else {
+            1.0
+        }
     }
 
     /// Photons of `layer` the planes have counted, over all passes.
@@ -1211,7 +1264,7 @@ mod tests {
             buried: &|_, _| false,
             clearance: &|_, _| f32::INFINITY,
         };
-        let g = MultiscaleGrids::build(set, &tris, &[photon], &[0], &MultiscaleParams::default(), &probes);
+        let g = MultiscaleGrids::build(set, &tris, &[photon], &[0], &MultiscaleParams::default(), &probes, None);
         let tex = &g.textures[0][INDIRECT];
         for level in 0..tex.level_count().min(4) {
             let lv = &tex.levels[level];
@@ -1250,6 +1303,7 @@ mod tests {
             &triangles,
             &MultiscaleParams::default(),
             &probes,
+            None,
         );
         let t = &g.textures[0];
         assert_eq!(t[INDIRECT].sizing, Sizing::Densest);
@@ -1269,7 +1323,7 @@ mod tests {
             cell_budget: 100,
             ..MultiscaleParams::default()
         };
-        let g = MultiscaleGrids::build(set, &tris, &photons, &triangles, &tight, &probes);
+        let g = MultiscaleGrids::build(set, &tris, &photons, &triangles, &tight, &probes, None);
         assert!(
             g.cells_grown > 1.0 && g.textures[0][INDIRECT].plane.res_u < 46,
             "{}",
@@ -1291,7 +1345,15 @@ mod tests {
             clearance: &|p: Vec3, _| (p.x - 1.1).abs() * std::f32::consts::SQRT_2,
         };
         let triangles = vec![0; photons.len()];
-        let g = MultiscaleGrids::build(set, &tris, &photons, &triangles, &MultiscaleParams::default(), &probes);
+        let g = MultiscaleGrids::build(
+            set,
+            &tris,
+            &photons,
+            &triangles,
+            &MultiscaleParams::default(),
+            &probes,
+            None,
+        );
         let tex = &g.textures[0][INDIRECT];
         let (mut at_wall, mut away) = (0, 0);
         for level in 2..tex.level_count().min(5) {
@@ -1319,6 +1381,60 @@ mod tests {
     }
 
     #[test]
+    fn passes_weigh_by_their_photons() {
+        // (Photon powers are stored with a shared exponent: sums are exact to 0.2 %.)
+        // Pass 1: 40 000 photons of a 1 W/m² field on 4 m². Pass 2: a tenth of the photons
+        // of a field twice as bright (each photon 20 times the power). Weighed by photons
+        // the irradiance is (1 + 0.1 · 2) / 1.1; as two equal passes it would be 1.5.
+        let tris = square(2.0);
+        let set = detect_planes(&tris, &PlaneParams::default());
+        let field = |n: usize, irradiance: f32, seed: u64| {
+            let mut rng = Rng::keyed(seed, 1, 4);
+            let power = Rgb::splat(4.0 * irradiance / n as f32);
+            let photons: Vec<Photon> = (0..n)
+                .map(|_| {
+                    let p = Vec3::new(rng.uniform() * 2.0, 0.0, rng.uniform() * 2.0);
+                    Photon::new(p, power, Vec3::Y, Vec3::Y, PhotonKind::Indirect)
+                })
+                .collect();
+            let tri = photons
+                .iter()
+                .map(|p| u32::from(p.pos().z <= p.pos().x))
+                .collect::<Vec<_>>();
+            (photons, tri)
+        };
+        let probes = Probes {
+            buried: &|_, _| false,
+            clearance: &|_, _| f32::INFINITY,
+        };
+        let emitted = |n| Some(Emitted { global: n, caustic: 0 });
+        let (p1, t1) = field(40_000, 1.0, 1);
+        let mut g = MultiscaleGrids::build(
+            set,
+            &tris,
+            &p1,
+            &t1,
+            &MultiscaleParams::default(),
+            &probes,
+            emitted(40_000),
+        );
+        let (p2, t2) = field(4_000, 2.0, 2);
+        g.add(&p2, &t2, emitted(4_000));
+        let tex = &g.textures[0][INDIRECT];
+        let flux: f32 = tex.levels[0].texels.iter().map(|t| t.flux[1]).sum();
+        let e = flux / (4.0 * g.passes_of(INDIRECT));
+        assert!((e - 1.2 / 1.1).abs() < 5e-3, "{e}");
+        assert_eq!(g.passes, 2);
+        // The variance floor is a weighed photon's power: 1e-4 W in pass 1, 2e-3 × 0.1 in pass 2.
+        let floor = (1e-4 + 0.1 * 2e-4) / 1.1;
+        assert!(
+            (g.mean_power[INDIRECT] / floor - 1.0).abs() < 5e-3,
+            "{}",
+            g.mean_power[INDIRECT]
+        );
+    }
+
+    #[test]
     fn uniform_field_gives_its_irradiance_at_every_scale_and_edge() {
         let tris = square(2.0);
         let set = detect_planes(&tris, &PlaneParams::default());
@@ -1343,7 +1459,7 @@ mod tests {
             buried: &|_, _| false,
             clearance: &|_, _| f32::INFINITY,
         };
-        let g = MultiscaleGrids::build(set, &tris, &photons, &tri, &MultiscaleParams::default(), &probes);
+        let g = MultiscaleGrids::build(set, &tris, &photons, &tri, &MultiscaleParams::default(), &probes, None);
         let tex = &g.textures[0][INDIRECT];
         let total: f64 = tex.levels[0].texels.iter().map(|t| t.area as f64).sum();
         let full = tex.levels[0].texels.iter().filter(|t| t.area > 0.0).count();

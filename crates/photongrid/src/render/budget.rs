@@ -245,17 +245,20 @@ pub fn fill(costs: &Costs, left: f64, size: PassSize, predicted: f64, measured: 
     if !kept(fill.photons, size.photons) || !kept(fill.caustic_photons, size.caustic_photons) {
         return None;
     }
+    // The images average with weights by time, which suits fewer samples but not fewer
+    // gather rays per sample: those make each sample noisier than its weight says.
+    if fill.gather < size.gather {
+        return None;
+    }
     // Photons and samples have floors; a pass cut at the deadline is dropped, so allow some.
     (corrected.pass_seconds(&fill) <= left).then_some(fill)
 }
 
 /// Fewest photons (of each kind, as a share of a regular pass's) a last, smaller pass may
-/// trace. The multiscale grids average their passes with equal weights, so a pass with a share
-/// s of the photons adds 1/s of a regular pass's variance to the grids' estimate: after two
-/// regular passes a third with s < 0.4 makes it noisier, not smoother, and every image after it
-/// reads it (shelf_objects CamShelf at `--time 15`: a fill pass of 13 k photons beside passes
-/// of 2 M raised the block error from about 2 % to 2.8 %).
-pub const FILL_MIN_PHOTON_SHARE: f64 = 0.4;
+/// trace. The multiscale grids weigh each pass by its photons, so any such pass smooths them;
+/// below this share a pass adds little and its own photon-map reads (surfaces off the planes)
+/// are noisier than its weight in the image average says.
+pub const FILL_MIN_PHOTON_SHARE: f64 = 0.1;
 
 /// Global photon paths a shrunk pass keeps before it gives up camera samples: this share of
 /// the requested ones (at least their share of [`MIN_PATHS`]). Measured on cornell_glass at
@@ -753,10 +756,15 @@ mod tests {
         assert!(2.0 * c.pass_seconds(&f) <= 1.2 * measured * 1.0001);
         assert!(f.paths() <= size.paths() && f.spp <= size.spp);
         assert_eq!(fill(&c, 0.1 * measured, size, predicted, measured), None);
-        // A third of a pass left: it would need far fewer photons than a regular pass, which
-        // would make the grids' average noisier.
-        let small = fill(&c, 0.3 * measured, size, predicted, measured);
-        assert_eq!(small, None, "{small:?}");
+        // Whatever is left, a fill pass keeps the regular gather rays per sample and at least
+        // FILL_MIN_PHOTON_SHARE of each kind of photon.
+        for left in [0.3, 0.5, 0.8, 1.2] {
+            if let Some(f) = fill(&c, left * measured, size, predicted, measured) {
+                assert_eq!(f.gather, size.gather, "{left}: {f:?}");
+                assert!(f.photons as f64 >= FILL_MIN_PHOTON_SHARE * size.photons as f64, "{f:?}");
+                assert!(f.caustic_photons as f64 >= FILL_MIN_PHOTON_SHARE * size.caustic_photons as f64);
+            }
+        }
     }
 
     #[test]
