@@ -664,7 +664,7 @@ fn dump_plane_grids(dir: &Path, g: &photongrid::grid::PlaneGrids) -> Result<()> 
 /// and (when final gathering resolved them) the irradiance gather rays read and the reach of
 /// the kernel chosen at each of its texels.
 fn dump_multiscale(dir: &Path, g: &photongrid::grid::multiscale::MultiscaleGrids) -> Result<()> {
-    use photongrid::grid::multiscale::{CAUSTIC, DIRECT, INDIRECT};
+    use photongrid::grid::multiscale::{CAUSTIC, DIRECT, INDIRECT, TAIL};
     std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
     // Each plane's frame, to place its textures in the scene: texel (x, y) of a field of
     // w × h covers origin + u·(x/w)·size_u + v·(y/h)·size_v (row y of the image).
@@ -681,7 +681,12 @@ fn dump_multiscale(dir: &Path, g: &photongrid::grid::multiscale::MultiscaleGrids
     std::fs::write(&path, serde_json::to_string_pretty(&frames)?)
         .with_context(|| format!("{}: cannot write", path.display()))?;
     for (i, tex) in g.textures.iter().enumerate() {
-        for (layer, name) in [(CAUSTIC, "caustic"), (INDIRECT, "indirect"), (DIRECT, "direct")] {
+        for (layer, name) in [
+            (CAUSTIC, "caustic"),
+            (INDIRECT, "indirect"),
+            (DIRECT, "direct"),
+            (TAIL, "tail"),
+        ] {
             let t = &tex[layer];
             output::write_field_exr(&dir.join(format!("plane{i:03}_{name}_counts.exr")), &t.count_field())?;
             if let Some((irradiance, reach)) = t.resolved_fields() {
@@ -1099,7 +1104,7 @@ fn info_grids(scene: &photongrid::scene::Scene) {
     let receivers = photongrid::grid::PlaneGrids::detect_receivers(scene, Settings::default().grid_res);
     outln!(
         "  multiscale textures (--method multiscale, the default): {} planes (mirrors and glass excluded); \
-         each gets three (caustic, indirect and direct light) with fine cells sized from the first pass's photons \
+         each gets four (caustic, indirect and direct light, and indirect light too deep for final gathering) with fine cells sized from the first pass's photons \
          (about --cell-photons photons per cell where that light is densest, 8 to 2048 cells along a side, within \
          --grid-cells) and a pyramid of coarser kernels, from which each point takes the widest that agrees with \
          every finer one; the sizes and the kernels chosen are known after the first pass: --stats (grids.choice) \

@@ -895,6 +895,7 @@ impl GridState {
                         cell_budget: settings.multiscale_cells(photons.len()),
                         photons_per_cell: settings.cell_photons,
                         max_radius: settings.max_radius * scene.bounds.diagonal(),
+                        max_depth: settings.max_depth,
                         ..MultiscaleParams::default()
                     };
                     let probes = Probes {

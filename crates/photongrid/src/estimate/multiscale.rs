@@ -14,7 +14,7 @@
 use super::photon_map::Gather;
 use super::Query;
 use crate::grid::multiscale::{
-    LayerTexture, MultiscaleGrids, Resolved, ScaleEstimate, Texel, CAUSTIC, DIRECT, INDIRECT, NO_LEVEL,
+    LayerTexture, MultiscaleGrids, Resolved, ScaleEstimate, Texel, CAUSTIC, DIRECT, INDIRECT, NO_LEVEL, TAIL,
 };
 use crate::Rgb;
 use glam::Vec3;
@@ -269,12 +269,15 @@ impl MultiscaleGrids {
     /// ([`MultiscaleGrids::irradiance`]). Call after each pass's photons are added.
     pub fn resolve_for_gathering(&mut self, gamma: Gammas) {
         let started = std::time::Instant::now();
-        let resolved: Vec<Vec<Resolved>> = self
+        let resolved: Vec<Vec<Option<Resolved>>> = self
             .textures
             .par_iter()
             .map(|tex| {
                 (0..tex.len())
                     .map(|l| {
+                        if l == TAIL {
+                            return None; // never gathered
+                        }
                         let t = &tex[l];
                         let (level, w, h) = t.level_within(RESOLVED_TEXELS);
                         let side = (1u32 << level) as f32;
@@ -288,7 +291,7 @@ impl MultiscaleGrids {
                                 self.layer_estimate(tex, l, p, gamma)
                             })
                             .collect();
-                        Resolved {
+                        Some(Resolved {
                             side,
                             w,
                             h,
@@ -298,14 +301,14 @@ impl MultiscaleGrids {
                                 .map(|e| e.map_or(NO_LEVEL, |e| e.level.min(NO_LEVEL as usize - 1) as u8))
                                 .collect(),
                             outline: t.outline(level),
-                        }
+                        })
                     })
                     .collect()
             })
             .collect();
         for (tex, r) in self.textures.iter_mut().zip(resolved) {
             for (t, r) in tex.iter_mut().zip(r) {
-                t.resolved = Some(r);
+                t.resolved = r;
             }
         }
         self.bright = super::bright::BrightTexels::build(self);
@@ -364,8 +367,11 @@ pub fn gather(grids: &MultiscaleGrids, q: &Query, gamma: Gammas, direct: bool, g
         (grids.layer_estimate(tex, INDIRECT, q.position, gamma), false)
     };
     if !needs_gathering {
-        if let Some(i) = &indirect {
-            add(i);
+        // Indirect light too deep for gathering is read here only: where gathering supplies
+        // indirect light, its deepest ray reaches the same paths one bounce earlier.
+        let tail = grids.layer_estimate(tex, TAIL, q.position, gamma);
+        for l in indirect.iter().chain(tail.iter()) {
+            add(l);
         }
     }
     let r2 = area.max(1e-30) / PI;
@@ -400,9 +406,10 @@ mod tests {
         // Only indirect light: 1/√N at most INDIRECT_NOISE.
         assert!(photons_suffice(1.0, 0.0, n));
         assert!(!photons_suffice(1.0, 0.0, 0.9 * n));
-        // A tenth of the light: a hundredth of the photons.
-        assert!(photons_suffice(0.1, 0.9, 0.01 * n * 1.001));
-        assert!(!photons_suffice(0.1, 0.9, 0.009 * n));
+        // Half the light: a quarter of the photons (above the floor).
+        assert!(0.25 * n > MIN_INDIRECT_PHOTONS);
+        assert!(photons_suffice(0.5, 0.5, 0.25 * n * 1.001));
+        assert!(!photons_suffice(0.5, 0.5, 0.24 * n));
         // Never below the floor, however little of the light it is.
         assert!(!photons_suffice(1e-4, 1.0, MIN_INDIRECT_PHOTONS - 1.0));
         assert!(photons_suffice(1e-4, 1.0, MIN_INDIRECT_PHOTONS));
@@ -443,7 +450,17 @@ mod tests {
     /// Multiscale grids of the 2 m square [0, 2]² at y = 0 (two triangles, no probes' limits,
     /// kernels up to 0.5 m) holding the photons `photon(rng)` gives until it has `n` (None:
     /// the draw is rejected).
-    fn square_grids(n: usize, seed: u64, mut photon: impl FnMut(&mut Rng) -> Option<Photon>) -> MultiscaleGrids {
+    fn square_grids(n: usize, seed: u64, photon: impl FnMut(&mut Rng) -> Option<Photon>) -> MultiscaleGrids {
+        square_grids_deep(n, seed, 0, photon)
+    }
+
+    /// [`square_grids`] under a `--max-depth` of `max_depth`.
+    fn square_grids_deep(
+        n: usize,
+        seed: u64,
+        max_depth: u32,
+        mut photon: impl FnMut(&mut Rng) -> Option<Photon>,
+    ) -> MultiscaleGrids {
         use crate::grid::planes::{detect_planes, PlaneParams};
         let tris = vec![
             [p(0.0, 0.0), p(0.0, 2.0), p(2.0, 2.0)],
@@ -465,9 +482,47 @@ mod tests {
         };
         let params = MultiscaleParams {
             max_radius: 0.5,
+            max_depth,
             ..MultiscaleParams::default()
         };
         MultiscaleGrids::build(set, &tris, &photons, &tri, &params, &probes, None)
+    }
+
+    /// Under `--max-depth 12` indirect photons stored at their 11th interaction are the last
+    /// order of light the camera may show, and one final-gather bounce would make their paths
+    /// 13 segments long: the camera reads them where it reads the photons' indirect light,
+    /// gather rays never do. Without a limit every photon is gathered.
+    #[test]
+    fn light_too_deep_for_gathering_is_read_by_the_camera_only() {
+        let n = 200_000;
+        // 1 W/m² over the 4 m² square, half of it at depth 10 and half at depth 11.
+        let power = Rgb::splat(4.0 / n as f32);
+        let gammas = Gammas {
+            global: 2.0,
+            caustic: 2.0,
+        };
+        let q = Query {
+            position: p(1.2, 0.8),
+            facing_normal: Vec3::Y,
+            geometric_normal: Vec3::Y,
+            triangle: 1,
+            footprint: 0.0,
+        };
+        for (max_depth, gathered_share) in [(12, 0.5), (0, 1.0)] {
+            let mut k = 0u32;
+            let mut g = square_grids_deep(n, 9, max_depth, |rng| {
+                k += 1;
+                let at = p(rng.uniform() * 2.0, rng.uniform() * 2.0);
+                let ph = Photon::new(at, power, Vec3::Y, Vec3::Y, PhotonKind::Indirect);
+                Some(ph.with_depth(10 + k % 2))
+            });
+            g.resolve_for_gathering(gammas);
+            let gathered = g.irradiance(q.triangle, q.position, Vec3::Y, gammas).unwrap();
+            assert!((gathered.x - gathered_share).abs() < 0.03, "{max_depth}: {gathered:?}");
+            let seen = gather(&g, &q, gammas, false, false).unwrap();
+            let seen = seen.flux.x / (PI * seen.r2);
+            assert!((seen - 1.0).abs() < 0.03, "{max_depth}: {seen}");
+        }
     }
 
     /// A field rising linearly with x, sampled by photons on a 2 m square: at the square's

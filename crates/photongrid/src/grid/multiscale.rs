@@ -143,20 +143,30 @@ impl Level {
 }
 
 /// The layers photons are sorted into, one per kind, so that the scale chosen for one does not
-/// limit another: caustics ([`CAUSTIC`]), indirect light ([`INDIRECT`]) and direct light
-/// ([`DIRECT`], read by final gathering and the single-map setting).
-pub const LAYERS: usize = 3;
+/// limit another: caustics ([`CAUSTIC`]), indirect light ([`INDIRECT`]), direct light
+/// ([`DIRECT`], read by final gathering and the single-map setting), and indirect light too
+/// deep for final gathering ([`TAIL`]).
+pub const LAYERS: usize = 4;
 /// The caustic layer.
 pub const CAUSTIC: usize = 0;
 /// The indirect layer.
 pub const INDIRECT: usize = 1;
 /// The direct layer.
 pub const DIRECT: usize = 2;
+/// Indirect photons at the deepest interaction the camera may read but a final-gather ray
+/// may not (`Settings::gathered`: through one more bounce the path would be longer than
+/// `--max-depth`). The camera reads them with [`INDIRECT`] where it reads the photons'
+/// indirect light; gathering never does (it would add the next order of light, about 1 % of
+/// a closed room's, which the references, truncated at the same depth, lack). Caustic photons
+/// that deep (ten specular bounces in a row) stay in [`CAUSTIC`].
+pub const TAIL: usize = 3;
 
-/// The layer of a photon kind.
-pub fn layer_of(kind: PhotonKind) -> usize {
-    match kind {
+/// The layer of a photon: by its kind, and [`TAIL`] for indirect photons too deep for final
+/// gathering under `max_depth` (0: unlimited).
+pub fn layer_of(p: &Photon, max_depth: u32) -> usize {
+    match p.kind() {
         PhotonKind::Caustic => CAUSTIC,
+        PhotonKind::Indirect if max_depth > 0 && p.depth() + 2 > max_depth => TAIL,
         PhotonKind::Indirect => INDIRECT,
         PhotonKind::Direct => DIRECT,
     }
@@ -525,6 +535,9 @@ pub struct MultiscaleParams {
     pub max_resolution: usize,
     /// The widest kernel's radius (m), as for every other gather (`Settings::max_radius`).
     pub max_radius: f32,
+    /// Longest path, in segments (`--max-depth`; 0: unlimited): sorts photons too deep for
+    /// final gathering into [`TAIL`].
+    pub max_depth: u32,
 }
 
 impl Default for MultiscaleParams {
@@ -534,6 +547,7 @@ impl Default for MultiscaleParams {
             photons_per_cell: 2.0,
             max_resolution: 2048,
             max_radius: f32::INFINITY,
+            max_depth: 0,
         }
     }
 }
@@ -564,6 +578,8 @@ pub struct MultiscaleGrids {
     global_power: f64,
     /// The farthest a kernel may reach from its point (m): scales stop below it.
     pub max_radius: f32,
+    /// Longest path in segments ([`MultiscaleParams::max_depth`]).
+    pub max_depth: u32,
     /// The factor by which every fine cell grew to fit the cell budget (`--grid-cells`; 1
     /// when the photons' sizes fit).
     pub cells_grown: f32,
@@ -592,6 +608,7 @@ impl Emitted {
         w[CAUSTIC] = ratio(self.caustic, reference.caustic);
         w[DIRECT] = ratio(self.global, reference.global);
         w[INDIRECT] = w[DIRECT];
+        w[TAIL] = w[DIRECT];
         w
     }
 }
@@ -763,6 +780,7 @@ impl MultiscaleGrids {
             plane_power_share: 0.0,
             global_power: 0.0,
             max_radius: params.max_radius,
+            max_depth: params.max_depth,
             cells_grown,
             bright: None,
         };
@@ -780,7 +798,7 @@ impl MultiscaleGrids {
         };
         let (mut power, mut n) = ([0.0f64; LAYERS], [0usize; LAYERS]);
         for p in photons {
-            let layer = layer_of(p.kind());
+            let layer = layer_of(p, self.max_depth);
             power[layer] += (luminance(p.power()) * weight[layer]) as f64;
             n[layer] += 1;
         }
@@ -818,6 +836,7 @@ impl MultiscaleGrids {
             run_base.push(run_base.last().copied().unwrap_or(0) + tex.count_runs());
         }
         let runs = run_base.last().copied().unwrap_or(0);
+        let max_depth = self.max_depth;
         for (chunk, tris) in photons.chunks(COUNT_CHUNK).zip(triangles.chunks(COUNT_CHUNK)) {
             let landed: Vec<(u32, Landing)> = chunk
                 .par_iter()
@@ -826,7 +845,7 @@ impl MultiscaleGrids {
                 .filter_map(|(p, &t)| {
                     let plane = self.set.plane_of_triangle.get(t as usize).copied().unwrap_or(NO_PLANE);
                     let tex = self.textures.get(plane as usize)?;
-                    let layer = layer_of(p.kind());
+                    let layer = layer_of(p, max_depth);
                     let mut l = tex[layer].landing(p)?;
                     l.flux = l.flux.map(|f| f * weight[layer]);
                     let run = run_base[plane as usize * LAYERS + layer] + l.cell as usize / COUNT_RUN_CELLS;
@@ -1018,7 +1037,7 @@ fn fine_resolutions(
             continue;
         }
         if let Some(c) = coarse[plane as usize].cell_of(p.pos(), f32::INFINITY) {
-            counts[plane as usize][layer_of(p.kind())][c] += 1;
+            counts[plane as usize][layer_of(p, params.max_depth)][c] += 1;
         }
     }
     let mut cell: Vec<[(f32, Sizing); LAYERS]> = coarse
@@ -1378,6 +1397,16 @@ mod tests {
             }
         }
         assert!(at_wall > 0 && away > 0, "{at_wall} texels at the wall, {away} away");
+    }
+
+    #[test]
+    fn indirect_photons_too_deep_for_gathering_have_their_own_layer() {
+        let at = |kind, depth| Photon::new(Vec3::ZERO, Rgb::ONE, Vec3::Y, Vec3::Y, kind).with_depth(depth);
+        assert_eq!(layer_of(&at(PhotonKind::Indirect, 10), 12), INDIRECT);
+        assert_eq!(layer_of(&at(PhotonKind::Indirect, 11), 12), TAIL);
+        assert_eq!(layer_of(&at(PhotonKind::Indirect, 11), 0), INDIRECT);
+        assert_eq!(layer_of(&at(PhotonKind::Caustic, 11), 12), CAUSTIC);
+        assert_eq!(layer_of(&at(PhotonKind::Direct, 1), 2), DIRECT);
     }
 
     #[test]
