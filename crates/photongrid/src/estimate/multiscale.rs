@@ -242,25 +242,20 @@ impl MultiscaleGrids {
         Some(
             [CAUSTIC, INDIRECT, DIRECT]
                 .iter()
-                .map(|&l| {
-                    let (gx, gy) = tex[l].plane.grid_coords(p);
-                    match &tex[l].resolved {
-                        Some(r) if !r.on_outline(gx, gy) => r.lookup(gx, gy),
-                        _ => self
-                            .layer_estimate(tex, l, p, gamma)
-                            .map_or(Rgb::ZERO, |e| e.irradiance),
-                    }
-                })
+                .map(|&l| self.resolved_layer(tex, l, p, gamma))
                 .sum(),
         )
     }
 
-    /// One layer's resolved irradiance at `p` (the layer's estimate where not resolved).
-    pub fn resolved_layer(&self, tex: &[LayerTexture], l: usize, p: Vec3) -> Rgb {
+    /// One layer's irradiance at `p` as gather rays read it: its resolved texture, else (and
+    /// in the texture's outline texels) the estimate at the point.
+    pub fn resolved_layer(&self, tex: &[LayerTexture], l: usize, p: Vec3, gamma: Gammas) -> Rgb {
         let (gx, gy) = tex[l].plane.grid_coords(p);
         match &tex[l].resolved {
-            Some(r) => r.lookup(gx, gy),
-            None => Rgb::ZERO,
+            Some(r) if !r.on_outline(gx, gy) => r.lookup(gx, gy),
+            _ => self
+                .layer_estimate(tex, l, p, gamma)
+                .map_or(Rgb::ZERO, |e| e.irradiance),
         }
     }
 
@@ -338,10 +333,11 @@ pub fn gather(grids: &MultiscaleGrids, q: &Query, gamma: Gammas, direct: bool, g
     if let Some(c) = &caustic {
         add(c);
     }
-    if direct {
-        if let Some(d) = grids.layer_estimate(tex, DIRECT, q.position, gamma) {
-            add(&d);
-        }
+    let direct_estimate = direct
+        .then(|| grids.layer_estimate(tex, DIRECT, q.position, gamma))
+        .flatten();
+    if let Some(d) = &direct_estimate {
+        add(d);
     }
     let (indirect, needs_gathering) = if gathering {
         // With final gathering at hand, the photons' indirect estimate is used only where a
@@ -350,10 +346,11 @@ pub fn gather(grids: &MultiscaleGrids, q: &Query, gamma: Gammas, direct: bool, g
         let i = grids.interior_estimate(tex, INDIRECT, q.position, gamma);
         let passes = grids.passes_of(INDIRECT);
         let enough = i.is_some_and(|i| {
-            let direct_light = if direct {
-                Rgb::ZERO
-            } else {
-                grids.resolved_layer(tex, DIRECT, q.position)
+            // Direct light as the image has it: the direct photons' estimate in the single-map
+            // setting, else (shadow rays) the direct layer as gather rays read it.
+            let direct_light = match (direct, &direct_estimate) {
+                (true, d) => d.map_or(Rgb::ZERO, |d| d.irradiance),
+                (false, _) => grids.resolved_layer(tex, DIRECT, q.position, gamma),
             };
             let caustic_light = caustic.map_or(Rgb::ZERO, |c| c.irradiance);
             photons_suffice(
