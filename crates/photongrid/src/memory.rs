@@ -21,7 +21,7 @@
 //! loader's default budget, `MemTotal` of `/proc/meminfo`), else 8 GiB.
 
 use crate::estimate::Accumulation;
-use crate::render::budget::{CAUSTIC_BOOST, GLOBAL_BOOST_MAX};
+use crate::render::budget::{PassSize, CAUSTIC_BOOST};
 use crate::scene::{Camera, Scene, Surface, Triangle};
 use crate::settings::Settings;
 
@@ -283,15 +283,10 @@ fn image_items(items: &mut Items, cameras: &[&Camera], settings: &Settings) {
 
 /// One pass's photons; returns how many are stored.
 fn photon_items(items: &mut Items, scene: &SceneFootprint, settings: &Settings) -> u64 {
-    // A time budget may ask for more caustic photons where caustics carry much of the light,
-    // and more global photons where the planes count them and they are cheap.
+    // A time budget may ask for more caustic photons where caustics carry much of the light
+    // (more global photons only as far as the limit allows: `photons_within_limit`).
     let boost = if settings.time.is_some() { CAUSTIC_BOOST } else { 1 };
-    let global_boost = if settings.time.is_some() && settings.method.needs().multiscale {
-        GLOBAL_BOOST_MAX
-    } else {
-        1.0
-    };
-    let paths = (settings.photons as f64 * global_boost).min(u64::MAX as f64 / 1024.0) as u64;
+    let paths = settings.photons as u64;
     let caustic = if scene.specular && settings.photons > 0 {
         settings.caustic_photons.saturating_mul(boost) as u64
     } else {
@@ -309,12 +304,7 @@ fn photon_items(items: &mut Items, scene: &SceneFootprint, settings: &Settings) 
     let per_photon = BYTES_PER_PHOTON + if gather { GATHER_BYTES_PER_PHOTON } else { 0 };
     items.add(
         format!(
-            "one pass's photons (about {stored} stored: {paths} paths{} × {per_path:.1} bounces at mean albedo {rho:.2}{}, {per_photon} bytes each)",
-            if global_boost > 1.0 {
-                format!(" (up to {global_boost}× --photons, as a time budget asks where photons are cheap)")
-            } else {
-                String::new()
-            },
+            "one pass's photons (about {stored} stored: {paths} paths × {per_path:.1} bounces at mean albedo {rho:.2}{}, {per_photon} bytes each)",
             if caustic > 0 && boost > 1 {
                 format!(", plus {caustic} caustic paths: {boost}× --caustic-photons, as a time budget asks where caustics carry much of the light")
             } else if caustic > 0 {
@@ -381,6 +371,35 @@ fn cameras_that_fit_footprint(scene: &SceneFootprint, cameras: &[&Camera], setti
     lo
 }
 
+/// `size` (a time-budgeted pass, its counts final) with its global photons lowered, not below
+/// the settings' own, until one pass of it fits the memory limit: a budget buys photons beyond
+/// those asked for only as far as memory allows.
+pub fn photons_within_limit(scene: &Scene, cameras: &[&Camera], settings: &Settings, size: PassSize) -> PassSize {
+    let footprint = SceneFootprint::of(scene);
+    photons_within_footprint(&footprint, cameras, settings, size)
+}
+
+fn photons_within_footprint(
+    scene: &SceneFootprint,
+    cameras: &[&Camera],
+    settings: &Settings,
+    size: PassSize,
+) -> PassSize {
+    let fits = |photons: usize| {
+        // The counts are the pass's own: no boost on top (`time` unset).
+        let pass = Settings {
+            time: None,
+            ..PassSize { photons, ..size }.apply(settings)
+        };
+        estimate_footprint(scene, cameras, &pass).fits()
+    };
+    let mut photons = size.photons;
+    while photons > settings.photons && !fits(photons) {
+        photons = (photons / 4 * 3).max(settings.photons);
+    }
+    PassSize { photons, ..size }
+}
+
 /// Refuse a render whose estimate is over the limit, before anything large is allocated.
 pub fn check_render(scene: &Scene, cameras: &[&Camera], settings: &Settings) -> Result<MemoryEstimate, MemoryError> {
     check_footprint(&SceneFootprint::of(scene), cameras, settings)
@@ -431,6 +450,53 @@ pub fn check_footprint(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_budget_buys_photons_only_as_far_as_memory_allows() {
+        let scene = SceneFootprint {
+            triangles: 10_000,
+            texels: 0,
+            specular: true,
+            mean_albedo: 0.5,
+        };
+        let settings = Settings {
+            photons: 1_000_000,
+            caustic_photons: 100_000,
+            width: Some(64),
+            height: Some(48),
+            time: Some(10.0),
+            ..Settings::default()
+        };
+        let size = PassSize {
+            photons: 8_000_000,
+            caustic_photons: 300_000,
+            spp: 4,
+            gather: 8,
+        };
+        let pass = |photons: usize, limit: u64| Settings {
+            memory_limit: Some(limit),
+            time: None,
+            ..PassSize { photons, ..size }.apply(&settings)
+        };
+        let bytes = |photons: usize| estimate_footprint(&scene, &[], &pass(photons, u64::MAX)).total();
+        assert!(bytes(8_000_000) > bytes(4_000_000) + (1 << 20));
+        let within = |limit: u64| {
+            let s = Settings {
+                memory_limit: Some(limit),
+                ..settings.clone()
+            };
+            photons_within_footprint(&scene, &[], &s, size).photons
+        };
+        // Room for all of them: unchanged.
+        assert_eq!(within(bytes(8_000_000)), 8_000_000);
+        // Room for about half: fewer, and the pass fits.
+        let half = within(bytes(4_000_000));
+        assert!((1_000_000..=4_000_000).contains(&half), "{half}");
+        assert!(estimate_footprint(&scene, &[], &pass(half, bytes(4_000_000))).fits());
+        // No room at all: never below what the settings ask for (the render's own check
+        // refuses it with its message).
+        assert_eq!(within(1), 1_000_000);
+    }
 
     #[test]
     fn sizes_print() {

@@ -703,6 +703,7 @@ pub fn plan_passes(
     let requested = PassSize::of(settings, caustic_photons(scene, settings));
     let costs = probe_costs(scene, accel, cameras, settings, requested, progress);
     let requested = requested.for_budget(&costs, left - costs.probe_seconds);
+    let requested = crate::memory::photons_within_limit(scene, cameras, settings, requested);
     times.probe += costs.probe_seconds;
     let plan = plan(&costs, left - costs.probe_seconds, requested, PLANNED_PASSES);
     tracing::info!(reason = plan.reason.as_str(), "pass size");

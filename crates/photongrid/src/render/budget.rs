@@ -285,8 +285,17 @@ pub const CAUSTICS_FIRST_SHARE: f64 = 0.1;
 /// pass (measured at equal passes and per second: docs/time_budget.md).
 pub const CAUSTIC_BOOST: usize = 3;
 
-/// Most a time budget multiplies the global photons of a pass by ([`PassSize::for_budget`]).
-pub const GLOBAL_BOOST_MAX: f64 = 4.0;
+/// Most a time budget multiplies the global photons of a pass by ([`PassSize::for_budget`];
+/// memory permitting: `memory::photons_within_limit`). shelf_objects CamFront at `--time 15`
+/// gained from passes of 13 M photons over 8 M (docs/time_budget.md).
+pub const GLOBAL_BOOST_MAX: f64 = 8.0;
+/// Most a time budget multiplies the camera samples of a pass by where the planes count less
+/// than [`GLOBAL_BOOST_PLANE_SHARE`] of the global photons ([`PassSize::for_budget`]): there
+/// gather rays carry the indirect light and more photons barely lower the noise, so fewer,
+/// larger passes spend less on each pass's photons and grids. curved_3d, one pass: 1 M, 2 M
+/// and 4 M global photons gave the same noise, 8 spp 0.64× the 4-spp noise
+/// (docs/time_budget.md).
+pub const SAMPLE_BOOST_MAX: u32 = 2;
 /// Share of the global photons the planes must count for a budget to buy more of them.
 pub const GLOBAL_BOOST_PLANE_SHARE: f64 = 0.5;
 
@@ -308,9 +317,14 @@ impl PassSize {
             caustic_photons,
             ..self
         };
+        let target = left / PLANNED_PASSES;
+        let size = PassSize {
+            spp: costs.sample_boost(&size, target),
+            ..size
+        };
         PassSize {
             // Rounded down: the boosted pass must still fit.
-            photons: (self.photons as f64 * costs.global_boost(&size, left / PLANNED_PASSES)).floor() as usize,
+            photons: (self.photons as f64 * costs.global_boost(&size, target)).floor() as usize,
             ..size
         }
     }
@@ -325,6 +339,19 @@ impl Costs {
         } else {
             PHOTON_FLOOR_SHARE
         }
+    }
+
+    /// The camera samples per pixel [`PassSize::for_budget`] asks for, for a pass of at most
+    /// `target` seconds: up to [`SAMPLE_BOOST_MAX`] times `size`'s where the planes count few of
+    /// the global photons, never fewer than `size`'s.
+    pub fn sample_boost(&self, size: &PassSize, target: f64) -> u32 {
+        let per_spp = self.camera_seconds(size) / size.spp.max(1) as f64;
+        if self.plane_share >= GLOBAL_BOOST_PLANE_SHARE || !(per_spp > 0.0) {
+            return size.spp;
+        }
+        let fits = ((target - self.pass_seconds(size)) / per_spp).floor();
+        let extra = fits.clamp(0.0, ((SAMPLE_BOOST_MAX - 1) * size.spp) as f64);
+        size.spp + extra as u32
     }
 
     /// The factor [`PassSize::for_budget`] multiplies the global photons of `size` by, for a
@@ -535,12 +562,17 @@ mod tests {
     fn a_budget_asks_for_more_caustic_photons_only_where_caustics_carry_much_light() {
         let heavy = requested().for_budget(&costs(), f64::INFINITY);
         assert_eq!(heavy.caustic_photons, CAUSTIC_BOOST * 1_000_000);
-        assert_eq!((heavy.photons, heavy.spp, heavy.gather), (2_000_000, 4, 8));
+        // (No plane counts a photon in these costs: the samples are boosted too.)
+        assert_eq!(
+            (heavy.photons, heavy.spp, heavy.gather),
+            (2_000_000, 4 * SAMPLE_BOOST_MAX, 8)
+        );
         let light = Costs {
             caustic_share: 0.004,
             ..costs()
         };
-        assert_eq!(requested().for_budget(&light, f64::INFINITY), requested());
+        let light = requested().for_budget(&light, f64::INFINITY);
+        assert_eq!((light.photons, light.caustic_photons), (2_000_000, 1_000_000));
     }
 
     #[test]
@@ -587,6 +619,34 @@ mod tests {
         assert_eq!(p.size, b, "{p:?}");
         assert!(p.reason.contains("fits"), "{}", p.reason);
         assert_eq!(requested().for_budget(&planar, full).photons, 2_000_000);
+    }
+
+    #[test]
+    fn a_budget_buys_camera_samples_where_the_planes_count_few_photons() {
+        let off_planes = Costs {
+            plane_share: 0.3,
+            ..costs()
+        };
+        let per_spp = off_planes.camera_seconds(&requested()) / 4.0;
+        let b = requested().for_budget(&off_planes, f64::INFINITY);
+        assert_eq!(
+            (b.spp, b.gather, b.photons),
+            (4 * SAMPLE_BOOST_MAX, 8, 2_000_000),
+            "{b:?}"
+        );
+        // Room for the request and about 2.5 more samples per pixel, PLANNED_PASSES times: 2.
+        let full = off_planes.pass_seconds(&requested());
+        let b = requested().for_budget(&off_planes, PLANNED_PASSES * (full + 2.5 * per_spp));
+        assert_eq!(b.spp, 6, "{b:?}");
+        assert!(off_planes.pass_seconds(&b) * PLANNED_PASSES <= PLANNED_PASSES * (full + 2.5 * per_spp));
+        // No room: the request as it was (plan shrinks it).
+        assert_eq!(requested().for_budget(&off_planes, full).spp, 4);
+        // Where the planes count the photons, the samples stay as requested.
+        let planar = Costs {
+            plane_share: 0.9,
+            ..costs()
+        };
+        assert_eq!(requested().for_budget(&planar, f64::INFINITY).spp, 4);
     }
 
     #[test]
