@@ -343,10 +343,11 @@ impl Costs {
 
     /// The camera samples per pixel [`PassSize::for_budget`] asks for, for a pass of at most
     /// `target` seconds: up to [`SAMPLE_BOOST_MAX`] times `size`'s where the planes count few of
-    /// the global photons, never fewer than `size`'s.
+    /// the global photons and gather rays carry the indirect light, never fewer than `size`'s.
+    /// (Without final gathering the camera shows the photons: more samples would not help.)
     pub fn sample_boost(&self, size: &PassSize, target: f64) -> u32 {
         let per_spp = self.camera_seconds(size) / size.spp.max(1) as f64;
-        if self.plane_share >= GLOBAL_BOOST_PLANE_SHARE || !(per_spp > 0.0) {
+        if self.plane_share >= GLOBAL_BOOST_PLANE_SHARE || size.gather == 0 || !(per_spp > 0.0) {
             return size.spp;
         }
         let fits = ((target - self.pass_seconds(size)) / per_spp).floor();
@@ -641,6 +642,12 @@ mod tests {
         assert!(off_planes.pass_seconds(&b) * PLANNED_PASSES <= PLANNED_PASSES * (full + 2.5 * per_spp));
         // No room: the request as it was (plan shrinks it).
         assert_eq!(requested().for_budget(&off_planes, full).spp, 4);
+        // Without final gathering the camera shows the photons: no more samples.
+        let shown = PassSize {
+            gather: 0,
+            ..requested()
+        };
+        assert_eq!(shown.for_budget(&off_planes, f64::INFINITY).spp, 4);
         // Where the planes count the photons, the samples stay as requested.
         let planar = Costs {
             plane_share: 0.9,
