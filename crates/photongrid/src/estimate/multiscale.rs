@@ -188,7 +188,7 @@ const MIN_INDIRECT_PHOTONS: f32 = 64.0;
 /// indirect estimate may bring where final gathering could supply it instead. Its blotches
 /// are a kernel wide and do not average out over pixels or passes, while gathering's
 /// grain does (docs/time_budget.md, "Gathering where the photons' blotches would show").
-const INDIRECT_NOISE: f32 = 0.01;
+const INDIRECT_NOISE: f32 = 0.005;
 
 /// Whether a kernel's `photons` (over all passes) make its `indirect` irradiance (luminance)
 /// quiet enough beside the point's `other` light (direct and caustic): its relative noise
