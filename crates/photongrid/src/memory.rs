@@ -397,6 +397,12 @@ fn photons_within_footprint(
     while photons > settings.photons && !fits(photons) {
         photons = (photons / 4 * 3).max(settings.photons);
     }
+    if photons < size.photons {
+        tracing::info!(
+            "the time budget would buy {} global photons per pass; {photons} fit the memory limit",
+            size.photons
+        );
+    }
     PassSize { photons, ..size }
 }
 

@@ -5,7 +5,7 @@
 
 use photongrid::pipeline::{render, RenderRequest};
 use photongrid::progress::Progress;
-use photongrid::render::budget::{GLOBAL_BOOST_MAX, GLOBAL_BOOST_PLANE_SHARE, SAMPLE_BOOST_MAX};
+use photongrid::render::budget::{GLOBAL_BOOST_MAX, SAMPLE_BOOST_MAX};
 use photongrid::render::progressive::Stop;
 use photongrid::Settings;
 use std::time::{Duration, Instant};
@@ -48,7 +48,7 @@ fn a_budget_sizes_passes_from_a_probe_and_says_why() {
     // still applies.
     assert_eq!(b.plan.size, b.requested);
     let c = &b.costs;
-    let expected = if c.plane_share < GLOBAL_BOOST_PLANE_SHARE {
+    let expected = if !c.planes_count_photons() {
         1.0
     } else {
         let global = settings.photons as f64 * c.per_path;
@@ -62,7 +62,7 @@ fn a_budget_sizes_passes_from_a_probe_and_says_why() {
         "{b:?}: expected {photons} global photons"
     );
     // More samples instead where the planes count few photons.
-    let spp = if c.plane_share < GLOBAL_BOOST_PLANE_SHARE {
+    let spp = if !c.planes_count_photons() {
         settings.spp * SAMPLE_BOOST_MAX
     } else {
         settings.spp
