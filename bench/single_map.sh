@@ -3,20 +3,20 @@
 # gathering, no caustic map, 1 spp, 1 M photons, seed 0. Renders every camera of the reference
 # table with the multiscale estimate (the default), the paper's adaptive estimate at n = 100 and
 # kNN at k = 50, 100, 200, 400, and prints the masked mean ratio, block and per-pixel error.
-#   bash bench/single_map.sh OUTDIR
+#   bash bench/single_map.sh OUTDIR   (ESTIMATES="multiscale knn:100" picks some; PHOTONGRID_BIN another build)
 # Writes OUTDIR/single_map.jsonl.
 set -euo pipefail
 out=${1:-out/single_map}
 here=$(cd "$(dirname "$0")/.." && pwd)
 S=${SCENES:-$here/../shared/scenes}
-bin=$here/target/release/photongrid
+bin=${PHOTONGRID_BIN:-$here/target/release/photongrid}
 mkdir -p "$out"
 : > "$out/single_map.jsonl"
 printf "%-20s %-14s %7s %7s %8s\n" camera estimate ratio block pixel
 for sc in cornell_glass:0 cornell_area:0 ring_caustic:0 ring_caustic:1 shadow_edges:0 curved_3d:0 \
           pool_caustic:0 pool_caustic:1 shelf_objects:0 shelf_objects:1; do
   s=${sc%:*}; c=${sc#*:}
-  for est in multiscale adaptive:100 knn:50 knn:100 knn:200 knn:400; do
+  for est in ${ESTIMATES:-multiscale adaptive:100 knn:50 knn:100 knn:200 knn:400}; do
     m=${est%:*}; k=${est#*:}; [ "$k" = "$est" ] && k=100
     img=$out/${s}_cam${c}_${m}_$k.exr
     "$bin" render "$S/$s.glb" --camera "$c" --output "$img" --progress quiet --seed 0 \

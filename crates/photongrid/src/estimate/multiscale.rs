@@ -557,6 +557,42 @@ mod tests {
         }
     }
 
+    /// A point light's hard shadow edge at x = 1 (light for x > 1 only, 1 W/m²): the lit
+    /// side reads its level up to the edge, not the mean of a kernel half in the shadow, and
+    /// the shadow reads no light. Without the dark cells the first 2 cm of the lit side read
+    /// 0.6–0.8 and light leaked a kernel's reach into the shadow.
+    #[test]
+    fn a_hard_shadow_edge_stays_sharp_on_both_sides() {
+        let n = 400_000;
+        let power = Rgb::splat(2.0 / n as f32);
+        let g = square_grids(n, 11, |rng| {
+            let (x, z) = (1.0 + rng.uniform(), rng.uniform() * 2.0);
+            Some(Photon::new(p(x, z), power, Vec3::Y, Vec3::Y, PhotonKind::Direct))
+        });
+        let gammas = Gammas {
+            global: 2.0,
+            caustic: 2.0,
+        };
+        let read = |x: f32| {
+            let mean: f32 = (0..40)
+                .map(|i| {
+                    let q = p(x, 0.3 + 1.4 * i as f32 / 40.0);
+                    g.layer_estimate(&g.textures[0], DIRECT, q, gammas)
+                        .map_or(0.0, |e| e.irradiance.x)
+                })
+                .sum();
+            mean / 40.0
+        };
+        for x in [1.006, 1.015, 1.03, 1.1] {
+            let e = read(x);
+            assert!((e - 1.0).abs() < 0.04, "lit side at x = {x}: {e} W/m²");
+        }
+        for x in [0.99, 0.97, 0.9] {
+            let e = read(x);
+            assert!(e < 1e-3, "shadow at x = {x}: {e} W/m²");
+        }
+    }
+
     /// A thin quad lit by 1 W/m² on top, with a third as many photons landing underneath at
     /// 3 W/m²: the textures keep the top's light only (the underside is the photon map's), and
     /// final-gather rays reading the resolved texture see what the point estimate says.

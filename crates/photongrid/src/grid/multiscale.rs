@@ -226,7 +226,18 @@ pub struct LayerTexture {
     /// The layer's estimate resolved on a coarse texture for final-gather rays (set after
     /// the pyramid is rebuilt; see `MultiscaleGrids::resolve_for_gathering`).
     pub resolved: Option<Resolved>,
+    /// Whether this layer's light has hard edges worth finding (direct light and caustics:
+    /// shadows of point lights, caustic outlines), see [`dark_cells`].
+    finds_dark: bool,
+    /// Per fine cell: dark ([`dark_cells`]) after the last rebuild; empty when none is.
+    dark: Vec<bool>,
+    /// The coverage of the dark cells, taken out of level 0 at the last rebuild and put back
+    /// before the next (more photons may show them lit).
+    stashed: Vec<(u32, Coverage)>,
 }
+
+/// A fine cell's covered area and its moments ([`Texel`]).
+type Coverage = (f32, [f32; 2], [f32; 3]);
 
 /// A layer's irradiance resolved per texel of one pyramid level (at the centroid of the
 /// surface each texel covers). Final-gather
@@ -304,7 +315,7 @@ impl Resolved {
 }
 
 impl LayerTexture {
-    fn new(plane: Plane, sizing: Sizing, coverage: Vec<Texel>) -> Self {
+    fn new(plane: Plane, sizing: Sizing, coverage: Vec<Texel>, finds_dark: bool) -> Self {
         let level = Level {
             w: plane.res_u,
             h: plane.res_v,
@@ -315,6 +326,49 @@ impl LayerTexture {
             sizing,
             levels: vec![level],
             resolved: None,
+            finds_dark,
+            dark: Vec::new(),
+            stashed: Vec::new(),
+        }
+    }
+
+    /// Share of the covered surface found dark at the last rebuild.
+    pub fn dark_share(&self) -> f32 {
+        let l0 = &self.levels[0];
+        let dark: f32 = self.stashed.iter().map(|s| s.1 .0).sum();
+        let lit: f32 = l0.texels.iter().map(|t| t.area).sum();
+        if dark + lit > 0.0 {
+            dark / (dark + lit)
+        } else {
+            0.0
+        }
+    }
+
+    /// Whether fine grid coordinates `(gx, gy)` fall in a dark cell.
+    fn dark_at(&self, gx: f32, gy: f32) -> bool {
+        !self.dark.is_empty() && self.dark[self.plane.grid_cell(gx, gy)]
+    }
+
+    /// Put the dark cells' coverage back, find them again from the counts so far, and take
+    /// theirs out of level 0: kernels then divide the light by the surface it can fall on,
+    /// so the lit side of a shadow edge or a caustic's outline is not averaged with the dark
+    /// side, and points in dark cells read no light of this layer.
+    fn mark_dark(&mut self) {
+        let l0 = &mut self.levels[0];
+        for (c, (area, m1, m2)) in self.stashed.drain(..) {
+            let t = &mut l0.texels[c as usize];
+            (t.area, t.area_moment, t.area_moment2) = (area, m1, m2);
+        }
+        let counts: Vec<f32> = l0.texels.iter().map(|t| t.count).collect();
+        let covered: Vec<bool> = l0.texels.iter().map(|t| t.area > 0.0).collect();
+        self.dark = dark_cells(l0.w, l0.h, &counts, &covered);
+        for (c, _) in self.dark.iter().enumerate().filter(|d| *d.1) {
+            let t = &mut l0.texels[c];
+            self.stashed.push((c as u32, (t.area, t.area_moment, t.area_moment2)));
+            (t.area, t.area_moment, t.area_moment2) = (0.0, [0.0; 2], [0.0; 3]);
+        }
+        if self.stashed.is_empty() {
+            self.dark = Vec::new();
         }
     }
 
@@ -438,9 +492,11 @@ impl LayerTexture {
     }
 
     /// Kernel sums at `p` on every level, finest first.
+    /// None in a dark cell ([`dark_cells`]).
     pub fn scales(&self, p: Vec3) -> impl Iterator<Item = ScaleEstimate> + '_ {
         let (gx, gy) = self.plane.grid_coords(p);
-        self.levels.iter().enumerate().map(move |(level, lv)| {
+        let levels = if self.dark_at(gx, gy) { 0 } else { self.levels.len() };
+        self.levels.iter().take(levels).enumerate().map(move |(level, lv)| {
             let s = (1u32 << level) as f32;
             ScaleEstimate {
                 level,
@@ -497,6 +553,9 @@ impl LayerTexture {
     fn rebuild(&mut self) {
         self.resolved = None;
         self.levels.truncate(1);
+        if self.finds_dark {
+            self.mark_dark();
+        }
         while {
             let l = self.levels.last().expect("level 0");
             l.w > 1 && l.h > 1
@@ -511,8 +570,104 @@ impl LayerTexture {
         self.levels
             .iter()
             .map(|l| l.texels.len() * std::mem::size_of::<Texel>())
-            .sum()
+            .sum::<usize>()
+            + self.dark.len()
+            + self.stashed.len() * std::mem::size_of::<(u32, Coverage)>()
     }
+}
+
+/// Photons a window of cells must be expected to hold, from the light in the ring of cells
+/// around it, before its holding none marks it dark: a lit window is empty with probability
+/// e^−24 ≈ 4·10⁻¹¹, so among the millions tested none is by chance.
+const DARK_EXPECTED: f64 = 24.0;
+
+/// Window sides tested (fine cells): the narrowest that is expected to hold
+/// [`DARK_EXPECTED`] photons finds the edge; wider ones find dark places in dimmer light.
+const DARK_WINDOWS: [usize; 12] = [1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64];
+
+/// Per cell of a `w × h` grid of photon `counts` (cells with surface: `covered`): whether it
+/// lies in a window of cells that holds no photon although the covered cells of the ring
+/// around it (the window's side on every side) say it should hold [`DARK_EXPECTED`] — the
+/// shadow of a point light, the outside of a caustic. Every cell of such a window is dark
+/// (the union of empty windows: a morphological opening of the empty cells), so the
+/// boundary is found to one cell whatever the window's size.
+pub fn dark_cells(w: usize, h: usize, counts: &[f32], covered: &[bool]) -> Vec<bool> {
+    let mut dark = vec![false; w * h];
+    if counts.iter().all(|&c| c <= 0.0) {
+        return dark;
+    }
+    // Summed-area tables of the counts and of the covered cells.
+    let sat = |v: &dyn Fn(usize) -> f64| {
+        let mut s = vec![0.0f64; (w + 1) * (h + 1)];
+        for y in 0..h {
+            let mut row = 0.0;
+            for x in 0..w {
+                row += v(y * w + x);
+                s[(y + 1) * (w + 1) + x + 1] = s[y * (w + 1) + x + 1] + row;
+            }
+        }
+        s
+    };
+    let n = sat(&|i| counts[i] as f64);
+    let a = sat(&|i| if covered[i] { 1.0 } else { 0.0 });
+    let sum = |s: &[f64], x0: usize, y0: usize, x1: usize, y1: usize| {
+        s[y1 * (w + 1) + x1] - s[y0 * (w + 1) + x1] - s[y1 * (w + 1) + x0] + s[y0 * (w + 1) + x0]
+    };
+    for b in DARK_WINDOWS.into_iter().filter(|&b| b <= w && b <= h) {
+        let (ww, wh) = (w - b + 1, h - b + 1);
+        // Empty windows, by their top-left cell.
+        let empty: Vec<f64> = (0..ww * wh)
+            .into_par_iter()
+            .map(|i| {
+                let (x, y) = (i % ww, i / ww);
+                let inside = sum(&a, x, y, x + b, y + b);
+                if inside <= 0.0 || sum(&n, x, y, x + b, y + b) > 0.0 {
+                    return 0.0;
+                }
+                let (x0, y0) = (x.saturating_sub(b), y.saturating_sub(b));
+                let (x1, y1) = ((x + 2 * b).min(w), (y + 2 * b).min(h));
+                let ring = sum(&a, x0, y0, x1, y1) - inside;
+                let expected = if ring > 0.0 {
+                    sum(&n, x0, y0, x1, y1) * inside / ring
+                } else {
+                    0.0
+                };
+                if expected >= DARK_EXPECTED {
+                    1.0
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        if empty.iter().all(|&e| e == 0.0) {
+            continue;
+        }
+        // A cell is dark when a window containing it is.
+        let mut se = vec![0.0f64; (ww + 1) * (wh + 1)];
+        for y in 0..wh {
+            let mut row = 0.0;
+            for x in 0..ww {
+                row += empty[y * ww + x];
+                se[(y + 1) * (ww + 1) + x + 1] = se[y * (ww + 1) + x + 1] + row;
+            }
+        }
+        dark.par_iter_mut().enumerate().for_each(|(i, d)| {
+            let (x, y) = (i % w, i / w);
+            if *d || !covered[i] {
+                return;
+            }
+            let (x0, y0) = ((x + 1).saturating_sub(b), (y + 1).saturating_sub(b));
+            let (x1, y1) = ((x + 1).min(ww), (y + 1).min(wh));
+            if x1 > x0
+                && y1 > y0
+                && se[y1 * (ww + 1) + x1] - se[y0 * (ww + 1) + x1] - se[y1 * (ww + 1) + x0] + se[y0 * (ww + 1) + x0]
+                    > 0.0
+            {
+                *d = true;
+            }
+        });
+    }
+    dark
 }
 
 /// A scale's estimate at a point.
@@ -757,7 +912,7 @@ impl MultiscaleGrids {
                     if l != CAUSTIC {
                         set_clearance(&plane, &mut area, probes.clearance);
                     }
-                    LayerTexture::new(plane, sizing, area)
+                    LayerTexture::new(plane, sizing, area, l == DIRECT || l == CAUSTIC)
                 })
             })
             .collect();
@@ -984,8 +1139,12 @@ impl MultiscaleGrids {
                             format!(", gathering reads {}×{}{reach}", r.w, r.h)
                         })
                         .unwrap_or_default();
+                    let dark = match l.dark_share() {
+                        d if d > 0.0 => format!(", {:.1} % of it found dark (no light of this kind)", d * 100.0),
+                        _ => String::new(),
+                    };
                     format!(
-                        "{}×{} cells of {:.1} mm ({}{grown}){read}",
+                        "{}×{} cells of {:.1} mm ({}{grown}){dark}{read}",
                         l.plane.res_u,
                         l.plane.res_v,
                         l.cell_size() * 1e3,
@@ -1246,6 +1405,53 @@ mod tests {
                 Photon::new(p, Rgb::ONE, Vec3::Y, Vec3::Y, PhotonKind::Indirect)
             })
             .collect()
+    }
+
+    /// Photons `per_cell` on average in the cells of a `w × h` grid where `lit` says so.
+    fn poisson_counts(w: usize, h: usize, per_cell: f32, lit: impl Fn(usize, usize) -> bool) -> Vec<f32> {
+        let mut counts = vec![0.0f32; w * h];
+        let mut rng = Rng::keyed(3, 1, 4);
+        for _ in 0..(per_cell * (w * h) as f32) as usize {
+            let (x, y) = (
+                ((rng.uniform() * w as f32) as usize).min(w - 1),
+                ((rng.uniform() * h as f32) as usize).min(h - 1),
+            );
+            if lit(x, y) {
+                counts[y * w + x] += 1.0;
+            }
+        }
+        counts
+    }
+
+    /// A shadow's cells are found dark up to its edge, to one cell, and a lit field with as
+    /// few as 3 photons per cell (a quarter of its cells empty, some 2×2 blocks too) has none.
+    #[test]
+    fn dark_cells_are_a_shadow_to_its_edge_and_never_lit_cells() {
+        let (w, h) = (200, 120);
+        let covered = vec![true; w * h];
+        let lit = poisson_counts(w, h, 3.0, |_, _| true);
+        assert!(lit.iter().filter(|&&c| c == 0.0).count() > w * h / 30);
+        assert!(!dark_cells(w, h, &lit, &covered).iter().any(|&d| d));
+        // Shadow for x < 80, and a strip 4 cells wide at x 140..144 (a thin blocker's; at 3
+        // cells the ring around a window is too much shadow to expect 24 photons in it).
+        let shadow = |x: usize| x < 80 || (140..144).contains(&x);
+        let counts = poisson_counts(w, h, 3.0, |x, _| !shadow(x));
+        let dark = dark_cells(w, h, &counts, &covered);
+        for y in 0..h {
+            for x in 0..w {
+                let d = dark[y * w + x];
+                if !shadow(x) {
+                    assert!(!d, "lit cell ({x}, {y}) found dark");
+                } else if x >= 50 {
+                    assert!(d, "shadowed cell ({x}, {y}) not found dark");
+                }
+            }
+        }
+        // Cells without surface are never dark, and an empty texture has no dark cells.
+        let mut holes = covered.clone();
+        holes[10 * w + 70] = false;
+        assert!(!dark_cells(w, h, &counts, &holes)[10 * w + 70]);
+        assert!(!dark_cells(w, h, &vec![0.0; w * h], &covered).iter().any(|&d| d));
     }
 
     #[test]
