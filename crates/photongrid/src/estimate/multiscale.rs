@@ -37,6 +37,8 @@ pub struct LayerEstimate {
     pub area: f32,
     /// Photons under the kernel (per pass).
     pub count: f32,
+    /// The kernel's sums (moments about the point).
+    pub kernel: Texel,
 }
 
 /// The local-linear fit of a kernel's sums (moments about the query point, fine cells):
@@ -78,6 +80,41 @@ pub fn local_linear(t: &Texel, side: f32) -> (f32, f32) {
 /// The most a local-linear fit may raise a kernel's mean: beyond it the fit extrapolates
 /// noise.
 const MAX_TILT: f32 = 4.0;
+
+/// The curvature bias of a local-linear kernel estimate ([`local_linear`]): where the
+/// irradiance has Hessian `h` (xx, xy, yy; per fine cell²) about the point, the fit's value
+/// at the point exceeds the truth by ½ tr(H M) − μᵀHμ, `M` the kernel's second area moments
+/// about the point and `μ` its area centroid, both per unit area (fine cells). Under a point
+/// light the light peaks with negative curvature and a wide kernel reads it a few per cent
+/// low (failure cases: −2 % at 25 to 50 cm from a corner, beneath the light).
+pub fn curvature_bias(kernel: &Texel, h: [f32; 3]) -> f32 {
+    let a = kernel.area;
+    if !(a > 0.0) {
+        return 0.0;
+    }
+    let m = kernel.area_moment2.map(|v| v / a);
+    let (mx, my) = (kernel.area_moment[0] / a, kernel.area_moment[1] / a);
+    let quad = |x: f32, xy: f32, y: f32| h[0] * x + 2.0 * h[1] * xy + h[2] * y;
+    0.5 * quad(m[0], m[1], m[2]) - quad(mx * mx, mx * my, my * my)
+}
+
+/// The Hessian (xx, xy, yy; per fine cell²) of the mean irradiance (luminance) over a 3×3
+/// block of texels `side` fine cells wide, from second differences. A texel's mean is a box
+/// average, which adds the same constant to every texel of a quadratic: the differences see
+/// the light's own curvature.
+pub fn block_hessian(block: &[[&Texel; 3]; 3], side: f32) -> [f32; 3] {
+    let m = |i: usize, j: usize| luminance(block[j][i].flux) / block[j][i].area;
+    let s2 = side * side;
+    [
+        (m(2, 1) - 2.0 * m(1, 1) + m(0, 1)) / s2,
+        (m(2, 2) - m(0, 2) - m(2, 0) + m(0, 0)) / (4.0 * s2),
+        (m(1, 2) - 2.0 * m(1, 1) + m(1, 0)) / s2,
+    ]
+}
+
+/// The largest relative curvature correction applied; a larger one means the block the
+/// curvature was read from is not smooth (an edge or a caustic within it), not a curved light.
+const MAX_CURVATURE_CORRECTION: f32 = 0.15;
 
 /// The estimate at the widest scale whose confidence interval meets every finer one's.
 /// `floor` is one photon's variance (an empty kernel is not certain to be dark), `passes`
@@ -132,6 +169,7 @@ pub fn choose_scale(
             level: s.level,
             area: t.area,
             count: t.count / passes,
+            kernel: t,
         });
     }
     best
@@ -210,7 +248,8 @@ impl MultiscaleGrids {
         let within = t
             .scales(p)
             .take_while(|s| s.level == 0 || t.kernel_reach(s.level) <= self.max_radius.min(s.texel.clearance));
-        choose_scale(within, gamma.of(layer), floor, self.passes_of(layer))
+        let e = choose_scale(within, gamma.of(layer), floor, self.passes_of(layer))?;
+        Some(self.curvature_corrected(t, layer, p, e))
     }
 
     /// One layer's estimate at `p` from kernels lying (almost) wholly on the plane and no
@@ -230,7 +269,36 @@ impl MultiscaleGrids {
             .take_while(|s| s.level == 0 || t.kernel_reach(s.level) <= self.max_radius)
             .take_while(|s| s.texel.area >= INTERIOR_COVERAGE * t.kernel_area(s.level))
             .take_while(|s| t.kernel_reach(s.level) <= s.texel.clearance);
-        choose_scale(inside, gamma.of(layer), floor, self.passes_of(layer))
+        let e = choose_scale(inside, gamma.of(layer), floor, self.passes_of(layer))?;
+        Some(self.curvature_corrected(t, layer, p, e))
+    }
+
+    /// A global layer's estimate less its kernel's curvature bias ([`curvature_bias`]), the
+    /// curvature read from the 3×3 block of texels one level coarser around the point (their
+    /// means hold four times the photons of the kernel's texels; the correction adds a few
+    /// hundredths of the estimate's noise). Caustics are left as they are: their curvature
+    /// is that of filaments and outlines, which no block resolves.
+    fn curvature_corrected(&self, t: &LayerTexture, layer: usize, p: Vec3, e: LayerEstimate) -> LayerEstimate {
+        if layer == CAUSTIC {
+            return e;
+        }
+        let level = (e.level + 1).min(t.level_count() - 1);
+        let (gx, gy) = t.plane.grid_coords(p);
+        let Some(block) = t.full_block(level, gx, gy, INTERIOR_COVERAGE) else {
+            return e;
+        };
+        let h = block_hessian(&block, (1u32 << level) as f32);
+        let passes = self.passes_of(layer);
+        let value = crate::luminance(e.irradiance);
+        let bias = curvature_bias(&e.kernel, h) / passes;
+        let rel = bias / value;
+        if !(rel.abs() <= MAX_CURVATURE_CORRECTION) {
+            return e;
+        }
+        LayerEstimate {
+            irradiance: e.irradiance * (1.0 - rel),
+            ..e
+        }
     }
 
     /// Total irradiance (every layer) at a point on a plane, for final-gather rays: the
@@ -555,6 +623,97 @@ mod tests {
                 e.level
             );
         }
+    }
+
+    /// The curvature formulas against closed forms: box means of f = x² + 3xy − y² give
+    /// its Hessian exactly (a box mean adds the same constant to every texel), and a box
+    /// kernel of side s centred on the point reads ½ (f_xx + f_yy) s²/12 too high.
+    #[test]
+    fn curvature_bias_and_hessian_match_closed_forms() {
+        let side = 4.0f32;
+        // Over a texel of side S centred at (x, y): mean x² = x² + S²/12, mean y² = y² + S²/12,
+        // mean xy = xy; the S²/12 terms cancel in this f.
+        let texels: Vec<Vec<Texel>> = (0..3)
+            .map(|j| {
+                (0..3)
+                    .map(|i| {
+                        let (x, y) = ((i as f32 - 1.0) * side + 0.5, (j as f32 - 1.0) * side - 0.25);
+                        let area = side * side;
+                        let mean = x * x + 3.0 * x * y - y * y;
+                        Texel {
+                            flux: [mean * area; 3],
+                            area,
+                            ..Texel::default()
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let block = [0, 1, 2].map(|j| [0, 1, 2].map(|i| &texels[j][i]));
+        let h = block_hessian(&block, side);
+        for (got, want) in h.iter().zip([2.0, 3.0, -2.0]) {
+            assert!((got - want).abs() < 1e-4, "{h:?}");
+        }
+        let s = 3.0f32;
+        let a = s * s;
+        let kernel = Texel {
+            area: a,
+            area_moment2: [a * s * s / 12.0, 0.0, a * s * s / 12.0],
+            ..Texel::default()
+        };
+        assert!(curvature_bias(&kernel, h).abs() < 1e-5, "f_xx + f_yy = 0");
+        // f = (x² + y²)/2: the centred box's local-linear value is s²/12 above f(0) = 0.
+        let h2 = [1.0, 0.0, 1.0];
+        assert!((curvature_bias(&kernel, h2) - s * s / 12.0).abs() < 1e-5);
+        // A box centred at (1, 0): the fit over it, read at 0, is s²/12 − ½ (x: the box mean
+        // ½ (1 + s²/12) less the slope 1 times the centroid's offset 1; y: s²/24).
+        let shifted = Texel {
+            area_moment: [a, 0.0],
+            area_moment2: [a * (s * s / 12.0 + 1.0), 0.0, a * s * s / 12.0],
+            ..kernel
+        };
+        assert!((curvature_bias(&shifted, h2) - (s * s / 12.0 - 0.5)).abs() < 1e-5);
+    }
+
+    /// A point light 0.8 m above the middle of the square: the light peaks beneath it with
+    /// negative curvature (E = h³ / (h² + r²)^{3/2}), and a kernel wide enough to hold
+    /// thousands of photons reads a local-linear fit about 2 % low there unless its
+    /// curvature bias is taken off (−1.8 % over these points without it, +0.2 % with).
+    #[test]
+    fn a_point_lights_peak_is_not_flattened() {
+        let h = 0.8f64;
+        let irradiance = |x: f64, z: f64| {
+            let r2 = (x - 1.0).powi(2) + (z - 1.0).powi(2);
+            (h * h / (h * h + r2)).powf(1.5)
+        };
+        // Total power on the square: a midpoint sum over 1 mm cells.
+        let total: f64 = (0..2000)
+            .flat_map(|i| (0..2000).map(move |j| (i, j)))
+            .map(|(i, j)| irradiance((i as f64 + 0.5) * 1e-3, (j as f64 + 0.5) * 1e-3) * 1e-6)
+            .sum();
+        let n = 400_000;
+        let power = Rgb::splat((total / n as f64) as f32);
+        let g = square_grids(n, 13, |rng| {
+            let (x, z) = (rng.uniform() * 2.0, rng.uniform() * 2.0);
+            (rng.uniform() <= irradiance(x as f64, z as f64) as f32)
+                .then(|| Photon::new(p(x, z), power, Vec3::Y, Vec3::Y, PhotonKind::Direct))
+        });
+        let gammas = Gammas {
+            global: 2.0,
+            caustic: 2.0,
+        };
+        let mut sum = 0.0;
+        let mut k = 0;
+        for i in 0..9 {
+            for j in 0..9 {
+                let (x, z) = (0.84 + 0.04 * i as f32, 0.84 + 0.04 * j as f32);
+                let e = g.layer_estimate(&g.textures[0], DIRECT, p(x, z), gammas).unwrap();
+                sum += e.irradiance.x as f64 / irradiance(x as f64, z as f64) - 1.0;
+                k += 1;
+            }
+        }
+        let bias = sum / k as f64;
+        assert!(bias.abs() < 0.01, "mean relative error beneath the light {bias:.4}");
     }
 
     /// A point light's hard shadow edge at x = 1 (light for x > 1 only, 1 W/m²): the lit

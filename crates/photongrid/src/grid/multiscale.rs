@@ -486,6 +486,42 @@ impl LayerTexture {
         ))
     }
 
+    /// The 3×3 block of `level`'s texels nearest the point at fine grid coordinates
+    /// `(gx, gy)` that lie wholly on the surface (each covering at least `coverage` of its
+    /// area): the centred block, else one shifted a texel towards the surface's interior.
+    /// Row-major, rows along y; None where no such block is within a texel.
+    pub fn full_block(&self, level: usize, gx: f32, gy: f32, coverage: f32) -> Option<[[&Texel; 3]; 3]> {
+        let lv = &self.levels[level];
+        if lv.w < 3 || lv.h < 3 {
+            return None;
+        }
+        let side = (1u32 << level) as f32;
+        let centre = |g: f32, n: usize| ((g / side).floor() as isize).clamp(1, n as isize - 2);
+        let (ci, cj) = (centre(gx, lv.w), centre(gy, lv.h));
+        let full = self.kernel_area(level) * coverage;
+        let texel = |i: isize, j: isize| -> Option<&Texel> {
+            let inside = i >= 0 && j >= 0 && (i as usize) < lv.w && (j as usize) < lv.h;
+            let t = inside.then(|| &lv.texels[j as usize * lv.w + i as usize])?;
+            (t.area >= full).then_some(t)
+        };
+        const SHIFTS: [(isize, isize); 9] = [
+            (0, 0),
+            (-1, 0),
+            (1, 0),
+            (0, -1),
+            (0, 1),
+            (-1, -1),
+            (1, -1),
+            (-1, 1),
+            (1, 1),
+        ];
+        SHIFTS.iter().find_map(|&(di, dj)| {
+            let (i, j) = (ci + di, cj + dj);
+            let row = |y: isize| Some([texel(i - 1, y)?, texel(i, y)?, texel(i + 1, y)?]);
+            Some([row(j - 1)?, row(j)?, row(j + 1)?])
+        })
+    }
+
     /// The surface area (m²) within texel `i` of `level`.
     pub fn texel_area(&self, level: usize, i: usize) -> f32 {
         self.levels[level].texels[i].area
