@@ -282,9 +282,12 @@ impl MultiscaleGrids {
         if layer == CAUSTIC {
             return e;
         }
-        let level = (e.level + 1).min(t.level_count() - 1);
         let (gx, gy) = t.plane.grid_coords(p);
-        let Some(block) = t.full_block(level, gx, gy, INTERIOR_COVERAGE) else {
+        let coarser = (e.level + 1).min(t.level_count() - 1);
+        let Some((level, block)) = [coarser, e.level]
+            .into_iter()
+            .find_map(|l| Some((l, t.full_block(l, gx, gy, INTERIOR_COVERAGE)?)))
+        else {
             return e;
         };
         let h = block_hessian(&block, (1u32 << level) as f32);
