@@ -85,8 +85,7 @@ const MAX_TILT: f32 = 4.0;
 /// irradiance has Hessian `h` (xx, xy, yy; per fine cell²) about the point, the fit's value
 /// at the point exceeds the truth by ½ tr(H M) − μᵀHμ, `M` the kernel's second area moments
 /// about the point and `μ` its area centroid, both per unit area (fine cells). Under a point
-/// light the light peaks with negative curvature and a wide kernel reads it a few per cent
-/// low (failure cases: −2 % at 25 to 50 cm from a corner, beneath the light).
+/// light the light peaks with negative curvature, and a wide kernel reads it low.
 pub fn curvature_bias(kernel: &Texel, h: [f32; 3]) -> f32 {
     let a = kernel.area;
     if !(a > 0.0) {
@@ -274,10 +273,11 @@ impl MultiscaleGrids {
     }
 
     /// A global layer's estimate less its kernel's curvature bias ([`curvature_bias`]), the
-    /// curvature read from the 3×3 block of texels one level coarser around the point (their
-    /// means hold four times the photons of the kernel's texels; the correction adds a few
-    /// hundredths of the estimate's noise). Caustics are left as they are: their curvature
-    /// is that of filaments and outlines, which no block resolves.
+    /// curvature read from the 3×3 block of full texels one level coarser around the point
+    /// (their means hold four times the photons of the kernel's texels, so the correction
+    /// adds little noise), else at the kernel's level (near an edge, where a coarser block
+    /// does not fit). Caustics are left as they are: their curvature is that of filaments
+    /// and outlines, which no block resolves.
     fn curvature_corrected(&self, t: &LayerTexture, layer: usize, p: Vec3, e: LayerEstimate) -> LayerEstimate {
         if layer == CAUSTIC {
             return e;
