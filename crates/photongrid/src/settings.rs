@@ -270,7 +270,7 @@ impl Default for Settings {
             wavelet_levels: 4,
             grid_quantity: GridQuantity::Count,
             ici_threshold: 2.0,
-            caustic_ici_threshold: 1.25,
+            caustic_ici_threshold: 1.0,
             cell_photons: 2.0,
             grid_cells: 4 << 20,
             light_samples: 4,

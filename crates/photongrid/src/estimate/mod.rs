@@ -248,17 +248,23 @@ impl<'a> Estimator<'a> {
                 gamma,
                 direct,
                 gathering,
-            } => match grids.and_then(|g| multiscale::gather(g, q, gamma, direct, gathering)) {
-                Some(g) => g,
-                None => {
-                    // With final gathering the map holds caustics only.
-                    let k_max = if gathering { k } else { OFF_PLANE_WIDENING * k };
-                    Gather {
-                        needs_gathering: gathering,
-                        ..map.adaptive_knn(q.position, q.facing_normal, (k_max, q.footprint), buf)
+            } => {
+                // With final gathering the map holds caustics only: its photons within a disc
+                // resolve a caustic finer than the grids' finest texel.
+                let mut finer = |r: f32| map.within(q.position, q.facing_normal, r);
+                let finer = gathering.then_some(&mut finer as &mut dyn FnMut(f32) -> Gather);
+                let on_plane = grids.and_then(|g| multiscale::gather(g, q, gamma, direct, gathering, finer));
+                match on_plane {
+                    Some(g) => g,
+                    None => {
+                        let k_max = if gathering { k } else { OFF_PLANE_WIDENING * k };
+                        Gather {
+                            needs_gathering: gathering,
+                            ..map.adaptive_knn(q.position, q.facing_normal, (k_max, q.footprint), buf)
+                        }
                     }
                 }
-            },
+            }
             Estimator::Adaptive {
                 map,
                 grids,

@@ -174,6 +174,26 @@ pub fn choose_scale(
     best
 }
 
+/// The caustic estimate's widest chosen level still checked against its neighbours'
+/// ([`MultiscaleGrids::caustic_consensus`]); wider kernels hold enough photons that a chance
+/// stop changes little.
+const CONSENSUS_MAX_LEVEL: usize = 2;
+
+/// Share of a point's caustic and direct light the caustic must carry for its scale to be
+/// checked against its neighbours' ([`MultiscaleGrids::caustic_consensus`]): where caustics
+/// are a faint part of the light (the walls of a room with a glass ball) their blotches do
+/// not show, and the check costs a tenth of the camera pass there.
+const CONSENSUS_SHARE: f32 = 0.1;
+
+/// Levels by which the caustic consensus may widen a kernel: the neighbours' scales are chosen
+/// no wider than that (they are only compared).
+const CONSENSUS_WIDENING: usize = 2;
+
+/// The estimate of the one scale `at` yields (no choice), as [`choose_scale`] would give it.
+fn choose_scale_fixed(at: impl Iterator<Item = ScaleEstimate>, floor: f32, passes: f32) -> Option<LayerEstimate> {
+    choose_scale(at, f32::INFINITY, floor, passes)
+}
+
 /// The variance of an irradiance estimate over `area_passes` (kernel area × passes) where
 /// the irradiance is `e` and photons carry `photon_power` each: the flux sum of a Poisson
 /// count of `e · area_passes / photon_power` photons, over `area_passes` squared.
@@ -249,6 +269,64 @@ impl MultiscaleGrids {
             .take_while(|s| s.level == 0 || t.kernel_reach(s.level) <= self.max_radius.min(s.texel.clearance));
         let e = choose_scale(within, gamma.of(layer), floor, self.passes_of(layer))?;
         Some(self.curvature_corrected(t, layer, p, e))
+    }
+
+    /// The scale chosen at `p` for a caustic (`e`), widened when it stopped alone: the
+    /// scales chosen at eight points two of its texels away (along the plane's axes and
+    /// diagonals) are compared, and when at most one of them is as fine, `p` is read at the
+    /// second finest of them. A filament or an outline through `p` stops the widening at the
+    /// two neighbours along it, so it keeps its scale; a fine kernel that stopped because its
+    /// few photons were by chance many or few stops alone, and its blotch (a kernel wide,
+    /// bright or dark) is read at its neighbours' scale instead.
+    pub(crate) fn caustic_consensus(
+        &self,
+        t: &LayerTexture,
+        p: Vec3,
+        gamma: Gammas,
+        e: LayerEstimate,
+    ) -> LayerEstimate {
+        if e.level > CONSENSUS_MAX_LEVEL {
+            return e;
+        }
+        let floor = self.mean_power[CAUSTIC] * self.mean_power[CAUSTIC];
+        let passes = self.passes_of(CAUSTIC);
+        let within = |q: Vec3| {
+            t.scales(q)
+                .take_while(|s| s.level == 0 || t.kernel_reach(s.level) <= self.max_radius)
+        };
+        let step = 2.0 * t.cell_size() * (1u32 << e.level) as f32;
+        let (u, v) = (t.plane.u * step, t.plane.v * step);
+        let diagonal = std::f32::consts::FRAC_1_SQRT_2;
+        let mut levels = [e.level; 8];
+        let around = [
+            u,
+            -u,
+            v,
+            -v,
+            (u + v) * diagonal,
+            (u - v) * diagonal,
+            (v - u) * diagonal,
+            -(u + v) * diagonal,
+        ];
+        for (i, d) in around.into_iter().enumerate() {
+            let n = choose_scale(
+                within(p + d).take(e.level + 1 + CONSENSUS_WIDENING),
+                gamma.caustic,
+                floor,
+                passes,
+            );
+            levels[i] = n.map_or(0, |n| n.level);
+            if i >= 1 && levels[..=i].iter().filter(|&&l| l <= e.level).count() >= 2 {
+                return e;
+            }
+        }
+        levels.sort_unstable();
+        let widened = levels[1];
+        if widened <= e.level {
+            return e;
+        }
+        let at = within(p).filter(|s| s.level == widened);
+        choose_scale_fixed(at, floor, passes).unwrap_or(e)
     }
 
     /// One layer's estimate at `p` from kernels lying (almost) wholly on the plane and no
@@ -388,10 +466,85 @@ impl MultiscaleGrids {
 /// Texels of a layer's resolved irradiance per plane, at most: the paper's 128 × 128.
 pub const RESOLVED_TEXELS: usize = 128 * 128;
 
+/// Photons (per pass) the disc finer than the finest texel must be expected to hold before it
+/// is read: fewer would put grain where the kernel was right.
+const FINER_PHOTONS: f32 = 64.0;
+
+/// Radius of that disc, in fine cells, at least: a fixed disc (a convolution, like the
+/// texels) keeps a caustic's flux, where a k-nearest-neighbour disc, wider on a fold's dark
+/// side, adds to it. The disc is no narrower than the camera pixel's footprint.
+const FINER_RADIUS: f32 = 0.5;
+
+/// Widest disc, in fine cells, worth reading: a pixel whose footprint is wider averages over
+/// the finest kernel's reach anyway, and the disc's test would only add its false alarms.
+const FINER_MAX_RADIUS: f32 = 0.75;
+
+/// Standard deviations by which the finer disc's estimate must differ from the finest
+/// kernel's to be used: a false alarm puts grain where the kernel was right, so the test is
+/// strict; the cusp or fold of a caustic is far brighter than a kernel's mean over it.
+const FINER_GAMMA: f32 = 3.0;
+
+/// Photons the disc finer than the texels must hold to be read in a dark cell (no kernel
+/// there), where a pixel's footprint reaches a caustic's bright side across a fold.
+const FINER_DARK_PHOTONS: usize = 16;
+
+/// Finer than the finest texel: where a caustic's estimate `c` stopped at level 0 and that
+/// kernel holds many photons (the cusp or fold of a caustic, narrower than a cell), the
+/// estimate of the photons within a disc of [`FINER_RADIUS`] cells or the pixel's footprint
+/// (`finer`: this pass's caustic photons within a radius) replaces it when Lepski's rule says
+/// the two differ ([`lepski_agrees`](super::photon_map::lepski_agrees)); in a dark cell
+/// (`c` None) it is read where it holds [`FINER_DARK_PHOTONS`].
+fn finer_than_texels(
+    c: Option<LayerEstimate>,
+    (cell, footprint): (f32, f32),
+    passes: f32,
+    finer: &mut dyn FnMut(f32) -> Gather,
+) -> Option<LayerEstimate> {
+    let r = (FINER_RADIUS * cell).max(footprint);
+    let area = PI * r * r;
+    if r > FINER_MAX_RADIUS * cell {
+        return c;
+    }
+    if let Some(c) = c {
+        if c.level != 0 || !(c.area > 0.0) || c.count * area / c.area < FINER_PHOTONS {
+            return Some(c);
+        }
+    }
+    let g = finer(r);
+    let irradiance = g.flux / area;
+    let agrees = match c {
+        Some(c) => {
+            let (e_disc, e_kernel) = (crate::luminance(irradiance), crate::luminance(c.irradiance));
+            let n_kernel = (c.count * passes).round() as usize;
+            super::photon_map::lepski_agrees(e_disc, g.count, e_kernel, n_kernel, FINER_GAMMA)
+        }
+        None => g.count < FINER_DARK_PHOTONS,
+    };
+    if agrees {
+        return c;
+    }
+    Some(LayerEstimate {
+        irradiance,
+        level: 0,
+        area,
+        count: g.count as f32,
+        kernel: c.map_or(Texel::default(), |c| c.kernel),
+    })
+}
+
 /// The photons' irradiance at a visible point `q` as a [`Gather`] (flux over a disc of the
 /// kernel's area): caustics always, direct light when `direct` (the single-map setting), and
 /// indirect light unless final gathering (`gathering`) does better here. None off the planes.
-pub fn gather(grids: &MultiscaleGrids, q: &Query, gamma: Gammas, direct: bool, gathering: bool) -> Option<Gather> {
+/// `finer`, when given, gathers this pass's caustic photons within a radius of `q`, read where
+/// a caustic is finer than the finest texel ([`finer_than_texels`]).
+pub fn gather(
+    grids: &MultiscaleGrids,
+    q: &Query,
+    gamma: Gammas,
+    direct: bool,
+    gathering: bool,
+    finer: Option<&mut dyn FnMut(f32) -> Gather>,
+) -> Option<Gather> {
     let tex = grids.texture_facing(q.triangle, q.facing_normal)?;
     let mut e = Rgb::ZERO;
     let (mut area, mut count) = (0.0f32, 0.0f32);
@@ -400,13 +553,35 @@ pub fn gather(grids: &MultiscaleGrids, q: &Query, gamma: Gammas, direct: bool, g
         area = area.max(l.area);
         count += l.count;
     };
-    let caustic = grids.layer_estimate(tex, CAUSTIC, q.position, gamma);
-    if let Some(c) = &caustic {
-        add(c);
-    }
     let direct_estimate = direct
         .then(|| grids.layer_estimate(tex, DIRECT, q.position, gamma))
         .flatten();
+    // Direct light as the image has it: the direct photons' estimate in the single-map
+    // setting, else (shadow rays) the direct layer as gather rays read it.
+    let direct_light = || match (direct, &direct_estimate) {
+        (true, d) => d.map_or(Rgb::ZERO, |d| d.irradiance),
+        (false, _) => grids.resolved_layer(tex, DIRECT, q.position, gamma),
+    };
+    let caustic = grids.layer_estimate(tex, CAUSTIC, q.position, gamma).map(|c| {
+        let (lc, ld) = (crate::luminance(c.irradiance), crate::luminance(direct_light()));
+        if lc >= CONSENSUS_SHARE * (lc + ld) {
+            grids.caustic_consensus(&tex[CAUSTIC], q.position, gamma, c)
+        } else {
+            c
+        }
+    });
+    let caustic = match finer {
+        Some(f) => finer_than_texels(
+            caustic,
+            (tex[CAUSTIC].cell_size(), q.footprint),
+            grids.passes_of(CAUSTIC),
+            f,
+        ),
+        None => caustic,
+    };
+    if let Some(c) = &caustic {
+        add(c);
+    }
     if let Some(d) = &direct_estimate {
         add(d);
     }
@@ -417,16 +592,10 @@ pub fn gather(grids: &MultiscaleGrids, q: &Query, gamma: Gammas, direct: bool, g
         let i = grids.interior_estimate(tex, INDIRECT, q.position, gamma);
         let passes = grids.passes_of(INDIRECT);
         let enough = i.is_some_and(|i| {
-            // Direct light as the image has it: the direct photons' estimate in the single-map
-            // setting, else (shadow rays) the direct layer as gather rays read it.
-            let direct_light = match (direct, &direct_estimate) {
-                (true, d) => d.map_or(Rgb::ZERO, |d| d.irradiance),
-                (false, _) => grids.resolved_layer(tex, DIRECT, q.position, gamma),
-            };
             let caustic_light = caustic.map_or(Rgb::ZERO, |c| c.irradiance);
             photons_suffice(
                 crate::luminance(i.irradiance),
-                crate::luminance(direct_light + caustic_light),
+                crate::luminance(direct_light() + caustic_light),
                 i.count * passes,
             )
         });
@@ -507,6 +676,7 @@ mod tests {
         assert!((e.irradiance.x - 1.0).abs() < 1e-6);
     }
 
+    use crate::estimate::photon_map::PhotonMap;
     use crate::grid::multiscale::{MultiscaleParams, Probes};
     use crate::photon::{Photon, PhotonKind};
     use crate::sampling::Rng;
@@ -587,7 +757,7 @@ mod tests {
             g.resolve_for_gathering(gammas);
             let gathered = g.irradiance(q.triangle, q.position, Vec3::Y, gammas).unwrap();
             assert!((gathered.x - gathered_share).abs() < 0.03, "{max_depth}: {gathered:?}");
-            let seen = gather(&g, &q, gammas, false, false).unwrap();
+            let seen = gather(&g, &q, gammas, false, false, None).unwrap();
             let seen = seen.flux.x / (PI * seen.r2);
             assert!((seen - 1.0).abs() < 0.03, "{max_depth}: {seen}");
         }
@@ -723,6 +893,129 @@ mod tests {
     /// side reads its level up to the edge, not the mean of a kernel half in the shadow, and
     /// the shadow reads no light. Without the dark cells the first 2 cm of the lit side read
     /// 0.6–0.8 and light leaked a kernel's reach into the shadow.
+    /// Flat caustic light: a fine kernel that stopped by chance is read at its neighbours'
+    /// (wider) scale, so the estimate's spread over the plane falls; a narrow line keeps its
+    /// sharpness (`a_caustic_finer_than_a_cell_follows_the_pixels_and_keeps_its_power`).
+    #[test]
+    fn a_chance_stop_in_flat_caustic_light_takes_its_neighbours_scale() {
+        let n = 200_000;
+        let power = Rgb::splat(4.0 / n as f32);
+        let g = square_grids(n, 3, |rng| {
+            let at = p(2.0 * rng.uniform(), 2.0 * rng.uniform());
+            Some(Photon::new(at, power, Vec3::Y, Vec3::Y, PhotonKind::Caustic))
+        });
+        let gammas = Gammas {
+            global: 2.0,
+            caustic: 1.0,
+        };
+        let t = &g.textures[0];
+        let floor = g.mean_power[CAUSTIC] * g.mean_power[CAUSTIC];
+        let mut rng = Rng::keyed(1, 2, 3);
+        let (mut with, mut without, mut fine_alone) = (0.0f32, 0.0f32, 0);
+        let points = 2000;
+        for _ in 0..points {
+            let q = p(0.3 + 1.4 * rng.uniform(), 0.3 + 1.4 * rng.uniform());
+            let alone = choose_scale(t[CAUSTIC].scales(q), gammas.caustic, floor, 1.0).expect("lit");
+            let chosen = g.caustic_consensus(&t[CAUSTIC], q, gammas, alone);
+            fine_alone += usize::from(alone.level <= 1);
+            without += (alone.irradiance.x - 1.0).powi(2) / points as f32;
+            with += (chosen.irradiance.x - 1.0).powi(2) / points as f32;
+        }
+        let (with, without) = (with.sqrt(), without.sqrt());
+        assert!(
+            fine_alone > points / 50,
+            "chance stops at the finest levels: {fine_alone} of {points}"
+        );
+        assert!(
+            with < 0.7 * without,
+            "RMS error {with} with the consensus, {without} without"
+        );
+    }
+
+    /// A caustic line narrower than the finest cell (a fold seen close up, pixels smaller than
+    /// a cell): with the disc finer than the texels the estimate follows the line as the
+    /// pixels see it, and the light across it sums to the line's power (a fixed disc, unlike
+    /// a k-nearest one, adds none).
+    #[test]
+    fn a_caustic_finer_than_a_cell_follows_the_pixels_and_keeps_its_power() {
+        let (n, line_share, width) = (1_000_000, 0.5, 0.00005);
+        let power = Rgb::splat(4.0 / n as f32); // 4 W over the 2 m square
+        let mut photons = Vec::new();
+        let g = square_grids(n, 5, |rng| {
+            let x = if rng.uniform() < line_share {
+                1.0003 + width * rng.uniform()
+            } else {
+                2.0 * rng.uniform()
+            };
+            let ph = Photon::new(
+                p(x, 0.2 + 1.6 * rng.uniform()),
+                power,
+                Vec3::Y,
+                Vec3::Y,
+                PhotonKind::Caustic,
+            );
+            photons.push(ph);
+            Some(ph)
+        });
+        let cell = g.textures[0][CAUSTIC].cell_size();
+        assert!(
+            width < 0.1 * cell,
+            "the line ({width} m) must be far narrower than a cell ({cell} m)"
+        );
+        let footprint = 0.6 * cell;
+        let map = PhotonMap::build(photons, 100, 4.0, 0.5);
+        let gammas = Gammas {
+            global: 2.0,
+            caustic: 1.25,
+        };
+        let read = |x: f32, finer: bool| -> f32 {
+            let mut e = 0.0;
+            for i in 0..20 {
+                let q = Query {
+                    position: p(x, 0.5 + i as f32 * 0.05),
+                    facing_normal: Vec3::Y,
+                    geometric_normal: Vec3::Y,
+                    triangle: 0,
+                    footprint,
+                };
+                let mut disc = |r: f32| map.within(q.position, Vec3::Y, r);
+                let f = finer.then_some(&mut disc as &mut dyn FnMut(f32) -> Gather);
+                let got = gather(&g, &q, gammas, false, true, f).expect("on the plane");
+                e += got.flux.x / (PI * got.r2) / 20.0;
+            }
+            e
+        };
+        let background = 4.0 * (1.0 - line_share) / 4.0;
+        let per_metre = 4.0 * line_share / 1.6;
+        let centre = 1.0003 + 0.5 * width;
+        // The line as a pixel of the footprint's radius sees it: its power over the chord.
+        let seen = |x: f32| {
+            let d = (x - centre).abs().min(footprint);
+            background + per_metre * 2.0 * (footprint * footprint - d * d).sqrt() / (PI * footprint * footprint)
+        };
+        let steps = 480;
+        let dx = 12.0 * cell / steps as f32;
+        let (mut err, mut err_coarse, mut excess) = (0.0f32, 0.0f32, 0.0f32);
+        for i in 0..steps {
+            let x = centre - 6.0 * cell + (i as f32 + 0.5) * dx;
+            let (fine, coarse) = (read(x, true), read(x, false));
+            err += (fine - seen(x)).powi(2) / steps as f32;
+            err_coarse += (coarse - seen(x)).powi(2) / steps as f32;
+            excess += (fine - background) * dx;
+        }
+        let peak = seen(centre);
+        let (err, err_coarse) = (err.sqrt() / peak, err_coarse.sqrt() / peak);
+        assert!(err < 0.1, "finer disc: RMS error across the line {err} of its peak");
+        assert!(
+            err < 0.6 * err_coarse,
+            "finer disc {err}, finest texel {err_coarse} of the peak"
+        );
+        assert!(
+            (excess / per_metre - 1.0).abs() < 0.03,
+            "power across the line: {excess} W/m, expected {per_metre}"
+        );
+    }
+
     #[test]
     fn a_hard_shadow_edge_stays_sharp_on_both_sides() {
         let n = 400_000;

@@ -280,10 +280,17 @@ pub const PHOTON_FLOOR_SHARE_PLANES: f64 = 0.5;
 pub const CAUSTICS_FIRST_SHARE: f64 = 0.1;
 
 /// Where caustics carry at least [`CAUSTICS_FIRST_SHARE`] of the stored photon power, a
-/// time-budgeted pass asks for this many times the caustic photons the settings give: a
-/// caustic's noise and sharpness depend on them alone, and they cost little beside the camera
-/// pass (measured at equal passes and per second: docs/time_budget.md).
-pub const CAUSTIC_BOOST: usize = 3;
+/// time-budgeted pass asks for up to this many times the caustic photons the settings give
+/// ([`CAUSTIC_TIME_SHARE`] sets how many): a caustic's noise and sharpness depend on them
+/// alone, and they cost little beside the camera pass (docs/time_budget.md).
+pub const CAUSTIC_BOOST: usize = 12;
+
+/// Share of a budgeted pass's planned seconds that its caustic photons may take where caustics
+/// carry much of the light ([`CAUSTICS_FIRST_SHARE`]; never fewer photons than the settings
+/// give, never more than [`CAUSTIC_BOOST`] times them). A fixed multiple either starved long
+/// budgets of caustic photons or took short ones' samples and global photons
+/// (docs/time_budget.md).
+pub const CAUSTIC_TIME_SHARE: f64 = 0.5;
 
 /// Most a time budget multiplies the global photons of a pass by ([`PassSize::for_budget`];
 /// memory permitting: `memory::photons_within_limit`; measured in docs/time_budget.md).
@@ -297,24 +304,19 @@ pub const SAMPLE_BOOST_MAX: u32 = 2;
 pub const GLOBAL_BOOST_PLANE_SHARE: f64 = 0.5;
 
 impl PassSize {
-    /// The pass a time budget asks for, given what the probe measured: [`CAUSTIC_BOOST`] times
-    /// the caustic photons where caustics carry much of the light, and more global photons
+    /// The pass a time budget asks for, given what the probe measured: more caustic photons
+    /// where caustics carry much of the light ([`Costs::caustic_boost`]), and more global photons
     /// where the planes estimate most of them and they cost less than half the camera's
     /// side of the pass — up to half of it, at most [`GLOBAL_BOOST_MAX`] times: there photons
     /// lowered the error more per second than samples (measured in docs/time_budget.md).
     /// The global photons are added only as far as the pass still fits [`PLANNED_PASSES`]
     /// times in `left` seconds: a shorter budget shrinks the pass, photons first.
     pub fn for_budget(self, costs: &Costs, left: f64) -> Self {
-        let caustic_photons = if costs.caustic_share >= CAUSTICS_FIRST_SHARE {
-            self.caustic_photons.saturating_mul(CAUSTIC_BOOST)
-        } else {
-            self.caustic_photons
-        };
+        let target = left / PLANNED_PASSES;
         let size = PassSize {
-            caustic_photons,
+            caustic_photons: costs.caustic_boost(self.caustic_photons, target),
             ..self
         };
-        let target = left / PLANNED_PASSES;
         let size = PassSize {
             spp: costs.sample_boost(&size, target),
             ..size
@@ -328,6 +330,21 @@ impl PassSize {
 }
 
 impl Costs {
+    /// The caustic photons [`PassSize::for_budget`] asks for instead of `requested`, for a pass
+    /// of at most `target` seconds: [`CAUSTIC_TIME_SHARE`] of it where caustics carry much of
+    /// the light, between `requested` and [`CAUSTIC_BOOST`] times it.
+    pub fn caustic_boost(&self, requested: usize, target: f64) -> usize {
+        if self.caustic_share < CAUSTICS_FIRST_SHARE || !(self.per_caustic_path > 0.0) {
+            return requested;
+        }
+        let by_time = CAUSTIC_TIME_SHARE * target / self.per_caustic_path;
+        let most = requested.saturating_mul(CAUSTIC_BOOST);
+        if by_time.is_nan() {
+            return requested;
+        }
+        (by_time.min(most as f64).floor() as usize).max(requested)
+    }
+
     /// The share of the requested global photons a shrunk pass keeps before it gives up camera
     /// samples ([`PHOTON_FLOOR_SHARE`], [`PHOTON_FLOOR_SHARE_PLANES`]).
     pub fn photon_floor_share(&self) -> f64 {
@@ -580,11 +597,34 @@ mod tests {
     }
 
     #[test]
+    fn caustic_photons_take_their_share_of_the_pass_time() {
+        let heavy = costs();
+        let target = 2.0; // 1 s of caustic paths at 0.4 µs: 2.5 M
+        assert_eq!(heavy.caustic_boost(1_000_000, target), 2_500_000);
+        // Never fewer than requested, never more than CAUSTIC_BOOST times.
+        assert_eq!(heavy.caustic_boost(1_000_000, 0.1), 1_000_000);
+        assert_eq!(heavy.caustic_boost(1_000_000, 1e6), CAUSTIC_BOOST * 1_000_000);
+        let light = Costs {
+            caustic_share: 0.004,
+            ..costs()
+        };
+        assert_eq!(light.caustic_boost(1_000_000, 1e6), 1_000_000);
+        // Whatever the budget, the pass keeps fitting: the caustic share is of the target.
+        let b = requested().for_budget(&heavy, PLANNED_PASSES * 4.0);
+        assert!(
+            b.caustic_photons as f64 * heavy.per_caustic_path <= CAUSTIC_TIME_SHARE * 4.0 + 1e-9,
+            "{b:?}"
+        );
+    }
+
+    #[test]
     fn a_budget_buys_global_photons_where_the_planes_count_them_and_they_are_cheap() {
         // The camera's side: 307200 × 4 × (2e-6 + 8 × 1e-6) = 12.3 s; the global photons':
         // 2 M × 1e-6 = 2 s, so up to 6.1 s (half the camera's) is worth 3.07 times the photons.
+        // (Caustics carry little light here: the caustic photons stay as requested.)
         let planar = Costs {
             plane_share: 0.9,
+            caustic_share: 0.004,
             ..costs()
         };
         let b = requested().for_budget(&planar, f64::INFINITY);
@@ -629,6 +669,7 @@ mod tests {
     fn a_budget_buys_camera_samples_where_the_planes_count_few_photons() {
         let off_planes = Costs {
             plane_share: 0.3,
+            caustic_share: 0.004,
             ..costs()
         };
         let per_spp = off_planes.camera_seconds(&requested()) / 4.0;
