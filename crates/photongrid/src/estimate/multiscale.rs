@@ -182,7 +182,7 @@ const CONSENSUS_MAX_LEVEL: usize = 2;
 /// Share of a point's caustic and direct light the caustic must carry for its scale to be
 /// checked against its neighbours' ([`MultiscaleGrids::caustic_consensus`]): where caustics
 /// are a faint part of the light (the walls of a room with a glass ball) their blotches do
-/// not show, and the check costs a tenth of the camera pass there.
+/// not show, and the check would cost camera time for nothing (docs/multiscale.md).
 const CONSENSUS_SHARE: f32 = 0.1;
 
 /// Levels by which the caustic consensus may widen a kernel: the neighbours' scales are chosen
