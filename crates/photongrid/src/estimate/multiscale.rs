@@ -532,6 +532,37 @@ fn finer_than_texels(
     })
 }
 
+/// The caustic layer's estimate at a visible point `q` of the plane texture `tex`: checked
+/// against its neighbours' scales where it is a good part of the point's light besides
+/// `direct_light` ([`MultiscaleGrids::caustic_consensus`]), and read finer than the finest
+/// texel where `finer` is given ([`finer_than_texels`]).
+fn caustic_estimate(
+    grids: &MultiscaleGrids,
+    tex: &[LayerTexture],
+    q: &Query,
+    gamma: Gammas,
+    direct_light: &dyn Fn() -> Rgb,
+    finer: Option<&mut dyn FnMut(f32) -> Gather>,
+) -> Option<LayerEstimate> {
+    let caustic = grids.layer_estimate(tex, CAUSTIC, q.position, gamma).map(|c| {
+        let (lc, ld) = (crate::luminance(c.irradiance), crate::luminance(direct_light()));
+        if lc >= CONSENSUS_SHARE * (lc + ld) {
+            grids.caustic_consensus(&tex[CAUSTIC], q.position, gamma, c)
+        } else {
+            c
+        }
+    });
+    match finer {
+        Some(f) => finer_than_texels(
+            caustic,
+            (tex[CAUSTIC].cell_size(), q.footprint),
+            grids.passes_of(CAUSTIC),
+            f,
+        ),
+        None => caustic,
+    }
+}
+
 /// The photons' irradiance at a visible point `q` as a [`Gather`] (flux over a disc of the
 /// kernel's area): caustics always, direct light when `direct` (the single-map setting), and
 /// indirect light unless final gathering (`gathering`) does better here. None off the planes.
@@ -562,23 +593,7 @@ pub fn gather(
         (true, d) => d.map_or(Rgb::ZERO, |d| d.irradiance),
         (false, _) => grids.resolved_layer(tex, DIRECT, q.position, gamma),
     };
-    let caustic = grids.layer_estimate(tex, CAUSTIC, q.position, gamma).map(|c| {
-        let (lc, ld) = (crate::luminance(c.irradiance), crate::luminance(direct_light()));
-        if lc >= CONSENSUS_SHARE * (lc + ld) {
-            grids.caustic_consensus(&tex[CAUSTIC], q.position, gamma, c)
-        } else {
-            c
-        }
-    });
-    let caustic = match finer {
-        Some(f) => finer_than_texels(
-            caustic,
-            (tex[CAUSTIC].cell_size(), q.footprint),
-            grids.passes_of(CAUSTIC),
-            f,
-        ),
-        None => caustic,
-    };
+    let caustic = caustic_estimate(grids, tex, q, gamma, &direct_light, finer);
     if let Some(c) = &caustic {
         add(c);
     }
