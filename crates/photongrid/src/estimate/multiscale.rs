@@ -264,11 +264,16 @@ impl MultiscaleGrids {
     pub fn layer_estimate(&self, tex: &[LayerTexture], layer: usize, p: Vec3, gamma: Gammas) -> Option<LayerEstimate> {
         let floor = self.mean_power[layer] * self.mean_power[layer];
         let t = &tex[layer];
-        let within = t
-            .scales(p)
-            .take_while(|s| s.level == 0 || t.kernel_reach(s.level) <= self.max_radius.min(s.texel.clearance));
-        let e = choose_scale(within, gamma.of(layer), floor, self.passes_of(layer))?;
+        let e = choose_scale(self.scales_within(t, p), gamma.of(layer), floor, self.passes_of(layer))?;
         Some(self.curvature_corrected(t, layer, p, e))
+    }
+
+    /// The scales of `t` at `p` that [`layer_estimate`](Self::layer_estimate) chooses among:
+    /// none reaching farther than `--max-radius` or the open space in front of the surface.
+    fn scales_within<'t>(&self, t: &'t LayerTexture, p: Vec3) -> impl Iterator<Item = ScaleEstimate> + 't {
+        let max_radius = self.max_radius;
+        t.scales(p)
+            .take_while(move |s| s.level == 0 || t.kernel_reach(s.level) <= max_radius.min(s.texel.clearance))
     }
 
     /// The scale chosen at `p` for a caustic (`e`), widened when it stopped alone: the
@@ -290,10 +295,7 @@ impl MultiscaleGrids {
         }
         let floor = self.mean_power[CAUSTIC] * self.mean_power[CAUSTIC];
         let passes = self.passes_of(CAUSTIC);
-        let within = |q: Vec3| {
-            t.scales(q)
-                .take_while(|s| s.level == 0 || t.kernel_reach(s.level) <= self.max_radius)
-        };
+        let within = |q: Vec3| self.scales_within(t, q);
         let step = 2.0 * t.cell_size() * (1u32 << e.level) as f32;
         let (u, v) = (t.plane.u * step, t.plane.v * step);
         let diagonal = std::f32::consts::FRAC_1_SQRT_2;
@@ -588,10 +590,14 @@ pub fn gather(
         .then(|| grids.layer_estimate(tex, DIRECT, q.position, gamma))
         .flatten();
     // Direct light as the image has it: the direct photons' estimate in the single-map
-    // setting, else (shadow rays) the direct layer as gather rays read it.
-    let direct_light = || match (direct, &direct_estimate) {
-        (true, d) => d.map_or(Rgb::ZERO, |d| d.irradiance),
-        (false, _) => grids.resolved_layer(tex, DIRECT, q.position, gamma),
+    // setting, else (shadow rays) the direct layer as gather rays read it. Read once, when
+    // first needed.
+    let direct_read = std::cell::OnceCell::new();
+    let direct_light = || {
+        *direct_read.get_or_init(|| match (direct, &direct_estimate) {
+            (true, d) => d.map_or(Rgb::ZERO, |d| d.irradiance),
+            (false, _) => grids.resolved_layer(tex, DIRECT, q.position, gamma),
+        })
     };
     let caustic = caustic_estimate(grids, tex, q, gamma, &direct_light, finer);
     if let Some(c) = &caustic {
