@@ -12,7 +12,7 @@ use crate::grid::PlaneGrids;
 use crate::grid::{GridParams, Grids};
 use crate::photon::{trace_photons, Photon, PhotonKind, PhotonStats, TraceSettings};
 use crate::progress::Progress;
-use crate::render::budget::{corrected, plan, Costs, PassSize, Plan, PLANNED_PASSES, REPLANNED_PASSES};
+use crate::render::budget::{corrected, plan, Costs, PassSize, Plan, Stage};
 use crate::render::progressive::{Accumulator, Budget, Stop};
 use crate::render::{CameraPass, Cut, PhotonData, RenderSettings};
 use crate::sampling::pass_seed;
@@ -591,7 +591,8 @@ impl<'a> PassLoop<'a> {
         let photon_seconds = photon_side(after) - photon_side(before);
         let first = budget.plan.size;
         let costs = corrected(&budget.costs, &first, photon_seconds, after.render - before.render);
-        let plan = plan(&costs, left, budget.requested, REPLANNED_PASSES);
+        let stage = Stage::After { gather: first.gather };
+        let plan = plan(&costs, left, budget.requested, stage);
         self.weight = (costs.pass_seconds(&plan.size) / costs.pass_seconds(&first)) as f32;
         self.settings = plan.size.apply(&self.settings);
         let next = plan.predicted_pass_seconds;
@@ -705,7 +706,7 @@ pub fn plan_passes(
     let requested = requested.for_budget(&costs, left - costs.probe_seconds);
     let requested = crate::memory::photons_within_limit(scene, cameras, settings, requested);
     times.probe += costs.probe_seconds;
-    let plan = plan(&costs, left - costs.probe_seconds, requested, PLANNED_PASSES);
+    let plan = plan(&costs, left - costs.probe_seconds, requested, Stage::First);
     tracing::info!(reason = plan.reason.as_str(), "pass size");
     let time = settings.time.unwrap_or(0.0);
     if plan.over_budget {

@@ -163,6 +163,40 @@ pub const PLANNED_PASSES: f64 = 1.6;
 /// pass that overruns is cut at the deadline (a small fill pass used the rest less well).
 pub const REPLANNED_PASSES: f64 = 1.1;
 
+/// Which passes a plan sizes: they differ in how many must fit and in what they give up.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    /// The first pass, sized from the probe's costs ([`PLANNED_PASSES`]).
+    First,
+    /// The passes after the first, sized from its measured costs ([`REPLANNED_PASSES`]). They
+    /// keep the first pass's `gather` rays per sample as long as fewer photons can make room:
+    /// the images average with weights by time, which suits fewer samples but not fewer gather
+    /// rays per sample (each sample is then noisier than its weight says), while their photons
+    /// join grids that already hold the first pass's.
+    After {
+        /// The first pass's gather rays per sample.
+        gather: u32,
+    },
+}
+
+impl Stage {
+    /// How many passes of the plan's size should fit in the time left.
+    pub fn passes(self) -> f64 {
+        match self {
+            Stage::First => PLANNED_PASSES,
+            Stage::After { .. } => REPLANNED_PASSES,
+        }
+    }
+
+    /// Fewest gather rays a pass keeps before its photons go below their floor.
+    fn gather_floor(self) -> u32 {
+        match self {
+            Stage::First => 1,
+            Stage::After { gather } => gather.max(1),
+        }
+    }
+}
+
 /// How the passes of a time-budgeted render are sized, and why.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Plan {
@@ -178,9 +212,10 @@ pub struct Plan {
     pub over_budget: bool,
 }
 
-/// Size the passes for `left` seconds: the requested pass when `passes` of them fit; otherwise
-/// a pass of `left / passes` made as [`shrink`] says.
-pub fn plan(costs: &Costs, left: f64, requested: PassSize, passes: f64) -> Plan {
+/// Size the passes of `stage` for `left` seconds: the requested pass when the stage's number of
+/// them fit; otherwise a pass of `left / passes` made as [`shrink`] says.
+pub fn plan(costs: &Costs, left: f64, requested: PassSize, stage: Stage) -> Plan {
+    let passes = stage.passes();
     let full = costs.pass_seconds(&requested);
     if full <= left / passes {
         let n = (left / full.max(1e-9)).floor();
@@ -192,7 +227,7 @@ pub fn plan(costs: &Costs, left: f64, requested: PassSize, passes: f64) -> Plan 
             over_budget: false,
         };
     }
-    let size = shrink(costs, left / passes, requested);
+    let size = shrink(costs, left / passes, requested, stage);
     let predicted = costs.pass_seconds(&size);
     let share = |n: usize, of: usize| 100.0 * n as f64 / of.max(1) as f64;
     Plan {
@@ -240,7 +275,7 @@ pub fn fill(costs: &Costs, left: f64, size: PassSize, predicted: f64, measured: 
     }
     let k = measured / predicted;
     let corrected = costs.scaled(k, k);
-    let fill = shrink(&corrected, FILL_SHARE * left, size);
+    let fill = shrink(&corrected, FILL_SHARE * left, size, Stage::First);
     let kept = |n: usize, of: usize| of == 0 || n as f64 >= FILL_MIN_PHOTON_SHARE * of as f64;
     if !kept(fill.photons, size.photons) || !kept(fill.caustic_photons, size.caustic_photons) {
         return None;
@@ -394,14 +429,15 @@ impl Costs {
 
 /// A pass of `requested`'s shape that takes `target` seconds, giving up first what lowers the
 /// error least: photons down to [`Costs::photon_floor_share`], then samples per pixel (down to 1),
-/// then gather rays (down to 1), then photons down to [`MIN_PATHS`]. Where caustics carry
+/// then gather rays (down to 1, or to the first pass's for the passes after it, [`Stage`]),
+/// then photons down to [`MIN_PATHS`], then the gather rays a later pass kept. Where caustics carry
 /// much of the light ([`CAUSTICS_FIRST_SHARE`]) the caustic photons are given up only after
 /// the samples: a caustic's sharpness depends on them alone (passes average images, they do
 /// not narrow the kernels), and they are cheap (most paths store one photon and need no
 /// irradiance); time freed then goes to caustic photons first. Elsewhere both kinds of photon
 /// shrink alike: the multiscale estimate shows global photons' light directly, and caustic
 /// photons bought at their expense darkened a scene whose caustics carry 0.4 % of the light.
-pub fn shrink(costs: &Costs, target: f64, requested: PassSize) -> PassSize {
+pub fn shrink(costs: &Costs, target: f64, requested: PassSize, stage: Stage) -> PassSize {
     let paths = requested.paths().max(1) as f64;
     let floor =
         |n: usize, share: f64| ((n as f64 * share).max(MIN_PATHS as f64 * n as f64 / paths).round() as usize).min(n);
@@ -427,16 +463,18 @@ pub fn shrink(costs: &Costs, target: f64, requested: PassSize) -> PassSize {
         size = fit.refill(size, g_lo, c_first);
     }
     size = fit.refill(size, g_lo, c_lo);
-    while size.gather > 1 && fit.over(&size) {
+    let (g_min, c_min) = (floor(requested.photons, 0.0), floor(requested.caustic_photons, 0.0));
+    let gather_floor = stage.gather_floor().min(requested.gather);
+    while size.gather > gather_floor && fit.over(&size) {
         size.gather -= 1;
         size = fit.refill(size, g_lo, c_lo);
     }
     if fit.over(&size) {
-        size = fit.refill(
-            size,
-            floor(requested.photons, 0.0),
-            floor(requested.caustic_photons, 0.0),
-        );
+        size = fit.refill(size, g_min, c_min);
+    }
+    while size.gather > 1 && fit.over(&size) {
+        size.gather -= 1;
+        size = fit.refill(size, g_min, c_min);
     }
     size
 }
@@ -659,7 +697,7 @@ mod tests {
         let b = requested().for_budget(&planar, left);
         assert!(b.photons > 2_000_000, "{b:?}");
         assert!(planar.pass_seconds(&b) <= left / PLANNED_PASSES, "{b:?}");
-        let p = plan(&planar, left, b, PLANNED_PASSES);
+        let p = plan(&planar, left, b, Stage::First);
         assert_eq!(p.size, b, "{p:?}");
         assert!(p.reason.contains("fits"), "{}", p.reason);
         assert_eq!(requested().for_budget(&planar, full).photons, 2_000_000);
@@ -704,7 +742,7 @@ mod tests {
     fn a_long_budget_keeps_the_requested_pass() {
         let c = costs();
         let full = c.pass_seconds(&requested());
-        let p = plan(&c, full * 10.0, requested(), PLANNED_PASSES);
+        let p = plan(&c, full * 10.0, requested(), Stage::First);
         assert_eq!(p.size, requested());
         assert!(!p.over_budget);
     }
@@ -733,7 +771,7 @@ mod tests {
         let full = c.pass_seconds(&requested());
         let mut cut_samples = false;
         for left in [full, full / 2.0, full / 3.0, full / 4.0] {
-            let p = plan(&c, left, requested(), PLANNED_PASSES);
+            let p = plan(&c, left, requested(), Stage::First);
             let target = left / PLANNED_PASSES;
             assert!(p.size.photons >= half, "{p:?}");
             if p.size.spp < requested().spp {
@@ -755,7 +793,7 @@ mod tests {
         let floor = |n: usize| (n as f64 * c.photon_floor_share()).round() as usize;
         let mut cut_caustics = false;
         for left in [full * 1.5, full, full / 2.0, full / 4.0, full / 6.0, full / 8.0] {
-            let p = plan(c, left, requested(), PLANNED_PASSES);
+            let p = plan(c, left, requested(), Stage::First);
             let target = left / PLANNED_PASSES;
             assert!(p.predicted_pass_seconds <= target * 1.0001, "{p:?}");
             assert!(!p.over_budget);
@@ -807,7 +845,7 @@ mod tests {
         let full = c.pass_seconds(&requested());
         let mut cut_samples = false;
         for left in [full, full / 2.0, full / 4.0, full / 6.0] {
-            let p = plan(&c, left, requested(), PLANNED_PASSES);
+            let p = plan(&c, left, requested(), Stage::First);
             assert!(p.predicted_pass_seconds <= left / PLANNED_PASSES * 1.0001, "{p:?}");
             if p.size.spp < requested().spp {
                 cut_samples = true;
@@ -830,8 +868,8 @@ mod tests {
             ..requested()
         };
         let left = c.pass_seconds(&two) * PLANNED_PASSES;
-        let rich = plan(&costs(), left, requested(), PLANNED_PASSES).size;
-        let poor = plan(&c, left, requested(), PLANNED_PASSES).size;
+        let rich = plan(&costs(), left, requested(), Stage::First).size;
+        let poor = plan(&c, left, requested(), Stage::First).size;
         assert!(rich.caustic_photons > poor.caustic_photons, "{rich:?} vs {poor:?}");
         assert!(rich.spp < poor.spp, "{rich:?} vs {poor:?}");
     }
@@ -840,7 +878,7 @@ mod tests {
     fn gather_rays_go_after_samples_and_caustics_and_a_hopeless_budget_says_so() {
         let c = costs();
         let one_spp = c.pixels as f64 * (c.per_sample + 8.0 * c.per_gather_ray);
-        let p = plan(&c, one_spp, requested(), PLANNED_PASSES);
+        let p = plan(&c, one_spp, requested(), Stage::First);
         assert_eq!(p.size.spp, 1);
         assert!(p.size.gather < 8 && p.size.gather >= 1, "{p:?}");
         let floor = |n: usize| (n as f64 * PHOTON_FLOOR_SHARE).round() as usize;
@@ -850,16 +888,58 @@ mod tests {
             ..p.size
         };
         assert!(c.pass_seconds(&one_more) > one_spp / PLANNED_PASSES, "{p:?}");
-        let hopeless = plan(&c, 1e-3, requested(), PLANNED_PASSES);
+        let hopeless = plan(&c, 1e-3, requested(), Stage::First);
         assert!(hopeless.over_budget);
         assert_eq!((hopeless.size.spp, hopeless.size.gather), (1, 1));
         assert_eq!(hopeless.size.paths(), MIN_PATHS);
     }
 
     #[test]
+    fn a_later_pass_keeps_the_first_passs_gather_rays_while_fewer_photons_make_room() {
+        let c = Costs {
+            caustic_share: 0.01,
+            ..costs()
+        };
+        // Room for 1 spp with every gather ray and a fortieth of the requested photons (below
+        // their floor, a sixteenth), once: the first pass would give up gather rays, a later
+        // one gives up photons.
+        let room = PassSize {
+            photons: requested().photons / 40,
+            caustic_photons: requested().caustic_photons / 40,
+            spp: 1,
+            ..requested()
+        };
+        let left = c.pass_seconds(&room) * REPLANNED_PASSES;
+        let first = plan(&c, left * PLANNED_PASSES / REPLANNED_PASSES, requested(), Stage::First).size;
+        assert!(first.gather < 8, "{first:?}");
+        let later = plan(&c, left, requested(), Stage::After { gather: 8 });
+        assert_eq!((later.size.spp, later.size.gather), (1, 8), "{later:?}");
+        assert!(later.size.photons < first.photons, "{later:?} vs {first:?}");
+        assert!(
+            later.predicted_pass_seconds <= left / REPLANNED_PASSES * 1.0001,
+            "{later:?}"
+        );
+        // With no room for that either, gather rays go only when MIN_PATHS photons do not fit
+        // beside one more of them (the photons then take what the dropped rays leave).
+        let target = c.pass_seconds(&room) * 0.5 / REPLANNED_PASSES;
+        let tight = plan(&c, target * REPLANNED_PASSES, requested(), Stage::After { gather: 8 });
+        assert!(tight.size.gather < 8, "{tight:?}");
+        let one_more = PassSize {
+            photons: MIN_PATHS * 2 / 3,
+            caustic_photons: MIN_PATHS / 3,
+            gather: tight.size.gather + 1,
+            ..tight.size
+        };
+        assert!(c.pass_seconds(&one_more) > target, "{tight:?}");
+        // A first pass with fewer gather rays than requested: later passes need not keep more.
+        let few = plan(&c, left, requested(), Stage::After { gather: 2 }).size;
+        assert!(few.gather >= 2 && few.photons >= later.size.photons, "{few:?}");
+    }
+
+    #[test]
     fn a_fill_pass_uses_the_measured_cost_and_is_skipped_when_too_small() {
         let c = costs();
-        let size = plan(&c, c.pass_seconds(&requested()), requested(), PLANNED_PASSES).size;
+        let size = plan(&c, c.pass_seconds(&requested()), requested(), Stage::First).size;
         let predicted = c.pass_seconds(&size);
         // The pass took twice the prediction; 1.2 of its durations are left.
         let measured = 2.0 * predicted;
@@ -919,7 +999,7 @@ mod tests {
             spp: 2,
             ..requested()
         };
-        let p = shrink(&c, c.pass_seconds(&exact), requested());
+        let p = shrink(&c, c.pass_seconds(&exact), requested(), Stage::First);
         assert_eq!((p.spp, p.gather), (2, 8), "{p:?}");
         assert!(p.photons.abs_diff(exact.photons) <= 2, "{p:?}");
         assert!(p.caustic_photons.abs_diff(exact.caustic_photons) <= 1, "{p:?}");
