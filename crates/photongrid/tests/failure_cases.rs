@@ -1,7 +1,7 @@
 //! Where the photon estimates fail: small synthetic scenes with a closed-form answer, rendered
 //! in single-map mode (`direct = photons`, so the photon estimate is the whole image) and
 //! compared with the direct light the photon map must reproduce. Each case is measured for
-//! kNN (k = 100, k = 500) and the paper's adaptive radius (k = 100) over four seeds; the bias
+//! kNN (k = 100, k = 500) and the paper's adaptive radius (k = 100) over twelve seeds; the bias
 //! (mean over seeds − truth) and the spread across seeds are printed as a table (`--nocapture`)
 //! and checked against thresholds set from the measured values with a margin, so that a
 //! regression fails with a message saying which case, method and quantity moved.
@@ -19,7 +19,7 @@ use std::f64::consts::PI;
 use std::time::Instant;
 
 const ALBEDO: f64 = 0.5;
-const SEEDS: [u64; 4] = [1, 2, 3, 4];
+const SEEDS: [u64; 12] = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12];
 const UP: [f64; 3] = [0.0, 1.0, 0.0];
 
 /// Single-map settings: every photon stored at its first diffuse hit and nothing after it
@@ -169,6 +169,23 @@ fn shadow_edge(report: &mut Report) {
             .map(|film| sum_over(film, &shadow_near) / sum_truth(&unsh, &shadow_near))
             .collect();
         report.add(case, "shadow band 0–10 cm: leak", spec.name, 0.0, &leak, "%");
+        if std::env::var("PG_PROFILE").is_ok() {
+            let mean = |px: usize| -> f64 {
+                let mut a = 0.0;
+                for film in f.iter() {
+                    for py in 0..view.h as usize {
+                        a += grey(film, py * w + px);
+                    }
+                }
+                let b: f64 = (0..view.h as usize).map(|py| truth[py * w + px]).sum();
+                a / f.len() as f64 / b
+            };
+            let cols: Vec<String> = (0..w)
+                .filter(|&px| xs[px] > x_edge - 0.03 && xs[px] < x_edge + 0.15)
+                .map(|px| format!("{:.1}:{:.3}", (xs[px] - x_edge) * 100.0, mean(px)))
+                .collect();
+            eprintln!("PROFILE {} {}", spec.name, cols.join(" "));
+        }
         report.add_rel_error(case, "lit band 0–10 cm: rel. error", spec.name, f, &truth, &lit_near);
         report.add_rel_error(case, "lit band 20–50 cm: rel. error", spec.name, f, &truth, &lit_far);
     }
@@ -723,97 +740,97 @@ fn empty_region(report: &mut Report) {
 /// 2 % (1 cm), at least 3 σ across seeds; see `Report::check_measured`. Re-measure with
 /// `PHOTONGRID_PRINT_BASELINE=1 cargo test --release --test failure_cases -- --nocapture`.
 const BASELINE: &[(&str, &str, [f64; 4])] = &[
-    ("shadow edge", "10–90 % width", [9.3487, 20.2801, 9.1478, 0.1775]),
+    ("shadow edge", "10–90 % width", [9.2142, 20.0917, 9.0463, -0.0105]),
     (
         "shadow edge",
         "shadow band 0–10 cm: leak",
-        [0.1857, 0.2674, 0.1857, 0.0000],
+        [0.1834, 0.2685, 0.1834, 0.0000],
     ),
     (
         "shadow edge",
         "lit band 0–10 cm: rel. error",
-        [-0.0882, -0.2475, -0.0809, -0.0230],
+        [-0.0793, -0.2425, -0.0722, 0.0023],
     ),
     (
         "shadow edge",
         "lit band 20–50 cm: rel. error",
-        [0.0007, 0.0056, 0.0008, 0.0058],
+        [0.0052, 0.0102, 0.0054, 0.0074],
     ),
     (
         "corner",
         "0–2 cm from wall: rel. error",
-        [-0.2632, -0.3790, -0.2415, 0.0200],
+        [-0.2711, -0.3807, -0.2469, 0.0239],
     ),
     (
         "corner",
         "2–6 cm from wall: rel. error",
-        [0.0107, -0.1410, 0.0131, 0.0198],
+        [0.0037, -0.1429, 0.0064, 0.0230],
     ),
     (
         "corner",
         "6–15 cm from wall: rel. error",
-        [0.0105, 0.0099, 0.0094, 0.0014],
+        [0.0069, 0.0030, 0.0066, 0.0029],
     ),
     (
         "corner",
         "25–50 cm from wall: rel. error",
-        [-0.0116, -0.0139, -0.0109, -0.0131],
+        [0.0013, -0.0026, 0.0019, -0.0014],
     ),
     (
         "step nose",
         "0–2 cm from nose: rel. error",
-        [-0.3418, -0.4201, -0.3187, -0.0271],
+        [-0.3207, -0.4098, -0.2934, 0.0069],
     ),
     (
         "step nose",
         "2–6 cm from nose: rel. error",
-        [-0.0280, -0.1833, -0.0238, -0.0213],
+        [-0.0195, -0.1726, -0.0152, -0.0030],
     ),
     (
         "step nose",
         "6–15 cm from nose: rel. error",
-        [-0.0036, -0.0100, -0.0029, -0.0100],
+        [-0.0007, -0.0063, -0.0001, -0.0005],
     ),
     (
         "step nose",
         "25–40 cm from nose: rel. error",
-        [0.0004, -0.0027, 0.0010, -0.0018],
+        [0.0014, -0.0017, 0.0020, 0.0005],
     ),
     (
         "tiny plane",
         "quad mean radiance: rel. error",
-        [-0.8480, -0.5535, -0.8480, -0.8041],
+        [-0.8487, -0.5548, -0.8487, -0.5802],
     ),
     (
         "grazing sun",
         "region mean: rel. error",
-        [0.0027, 0.0031, 0.0027, 0.0028],
+        [0.0006, 0.0005, 0.0006, -0.0002],
     ),
     (
         "caustic",
         "power within 2 cm: rel. error",
-        [0.1000, 0.0746, 0.0372, 0.0370],
+        [0.0392, 0.0365, 0.0184, 0.0191],
     ),
     (
         "caustic",
         "power within 8 cm: rel. error",
-        [0.0630, 0.0931, 0.0123, 0.0117],
+        [0.0466, 0.0783, 0.0087, 0.0082],
     ),
     (
         "empty region",
         "dark 0–5 cm: leak / lit",
-        [0.1392, 0.2341, 0.1392, 0.0000],
+        [0.1386, 0.2335, 0.1386, 0.0000],
     ),
     (
         "empty region",
         "dark 5–15 cm: leak / lit",
-        [0.0179, 0.0205, 0.0179, 0.0000],
+        [0.0176, 0.0203, 0.0176, 0.0000],
     ),
     ("empty region", "leak reach", [9.8750, 9.8750, 9.8750, 0.0000]),
     (
         "empty region",
         "lit 0–5 cm at wall: rel. error",
-        [-0.0757, -0.2106, -0.0616, 0.0008],
+        [-0.0728, -0.2152, -0.0591, 0.0038],
     ),
 ];
 
@@ -899,11 +916,12 @@ fn docs(report: &Report) -> String {
          on the lit side of a shadow edge; k = 500 darkens more and farther than k = 100.\n\
          - **The multiscale estimate** (the default) knows each plane's covered area and finds \
          dark cells (no direct or caustic photon where the light around says dozens should be), \
-         so it divides light by the surface it falls on: within about 3 % at the nose, the \
-         corner and the lit side of a shadow edge, no leak, a shadow edge as wide as the truth. \
-         What is left there (−2 to −3 % on the tread and the lit band, −2 % under the light in \
-         the corner) is curvature bias: its kernels widen until the light's bend exceeds their \
-         noise (at 2 σ), and a point light's peak is concave.\n\
+         so it divides light by the surface it falls on, and it takes a direct-light cell on a \
+         shadow's edge as lit by the share its photons' flux says against the cells around it: \
+         within about 2.5 % at the nose, the corner and the lit side of a shadow edge (the \
+         nose and the lit band within their standard errors of about 1.5 and 0.9 %, the corner \
+         +2.3 to +2.4 % ± 1.2 % within 6 cm of the wall), no leak, a shadow edge as wide as the \
+         truth.\n\
          - **Shadows and walls leak**: the gather reaches photons of the same orientation on the \
          other side of an occluder (same plane, same normal), so light spreads into the shadow by \
          about the gather radius and reaches, ever weaker, up to the largest gather radius \
