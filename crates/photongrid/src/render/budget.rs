@@ -356,6 +356,10 @@ impl PassSize {
             spp: costs.sample_boost(&size, target),
             ..size
         };
+        let size = PassSize {
+            spp: costs.samples_for_photons(&size, target),
+            ..size
+        };
         PassSize {
             // Rounded down: the boosted pass must still fit.
             photons: (self.photons as f64 * costs.global_boost(&size, target)).floor() as usize,
@@ -408,6 +412,25 @@ impl Costs {
         let fits = ((target - self.pass_seconds(size)) / per_spp).floor();
         let extra = fits.clamp(0.0, ((SAMPLE_BOOST_MAX - 1) * size.spp) as f64);
         size.spp + extra as u32
+    }
+
+    /// The camera samples per pixel [`PassSize::for_budget`] asks for where the planes count
+    /// the global photons and caustics carry little light, when `size` does not fit in `target`
+    /// seconds: up to half of `size`'s samples are given up before any photon, so that the
+    /// photons (cheap beside the camera there, and what the planes show) can be boosted
+    /// ([`Costs::global_boost`]) instead of cut to their floor. On shelf_objects CamShelf,
+    /// whose 4 samples per pixel take most of a 15 s budget, the photons were the rest and
+    /// swung between 1 and 5 M with the probe's noise (docs/time_budget.md).
+    pub fn samples_for_photons(&self, size: &PassSize, target: f64) -> u32 {
+        if !self.planes_count_photons() || self.caustic_share >= CAUSTICS_FIRST_SHARE {
+            return size.spp;
+        }
+        let least = size.spp.div_ceil(2).max(1);
+        let mut spp = size.spp;
+        while spp > least && self.pass_seconds(&PassSize { spp, ..*size }) > target {
+            spp -= 1;
+        }
+        spp
     }
 
     /// The factor [`PassSize::for_budget`] multiplies the global photons of `size` by, for a
@@ -700,7 +723,22 @@ mod tests {
         let p = plan(&planar, left, b, Stage::First);
         assert_eq!(p.size, b, "{p:?}");
         assert!(p.reason.contains("fits"), "{}", p.reason);
-        assert_eq!(requested().for_budget(&planar, full).photons, 2_000_000);
+        // Room for the request once only: samples go (at most half of them) before photons,
+        // and the photons then get their boost.
+        let tight = requested().for_budget(&planar, full);
+        assert!(tight.spp < 4 && tight.spp >= 2, "{tight:?}");
+        assert!(tight.photons > 2_000_000, "{tight:?}");
+        assert!(
+            planar.pass_seconds(&tight) <= full / PLANNED_PASSES * 1.0001,
+            "{tight:?}"
+        );
+        // Not where the planes count few photons, nor where caustics carry much light.
+        assert_eq!(requested().for_budget(&curved, full).spp, 4);
+        let caustic = Costs {
+            caustic_share: 0.2,
+            ..planar
+        };
+        assert_eq!(requested().for_budget(&caustic, full).spp, 4);
     }
 
     #[test]
