@@ -416,8 +416,9 @@ impl Costs {
 
     /// The camera samples per pixel [`PassSize::for_budget`] asks for where the planes count
     /// the global photons and caustics carry little light, when `size` does not fit in `target`
-    /// seconds: up to half of `size`'s samples are given up before any photon, so that the
-    /// photons (cheap beside the camera there, and what the planes show) can be boosted
+    /// seconds but would with at most half of its samples: the fewest samples given up for
+    /// that, before any photon, so that the photons (cheap beside the camera there, and what
+    /// the planes show) can be boosted
     /// ([`Costs::global_boost`]) instead of cut to their floor. On shelf_objects CamShelf,
     /// whose 4 samples per pixel take most of a 15 s budget, the photons were the rest and
     /// swung between 1 and 5 M with the probe's noise (docs/time_budget.md).
@@ -426,11 +427,14 @@ impl Costs {
             return size.spp;
         }
         let least = size.spp.div_ceil(2).max(1);
-        let mut spp = size.spp;
-        while spp > least && self.pass_seconds(&PassSize { spp, ..*size }) > target {
-            spp -= 1;
+        let fits = |spp: u32| self.pass_seconds(&PassSize { spp, ..*size }) <= target;
+        // A short budget where even half the samples do not fit shrinks as before ([`shrink`]):
+        // there the photons would get no boost, and a first pass of 1 spp with all the
+        // photons left no time for a second (cornell_glass at --time 5: 1.84 -> 3.17 %).
+        if fits(size.spp) || !fits(least) {
+            return size.spp;
         }
-        spp
+        (least..size.spp).rev().find(|&s| fits(s)).unwrap_or(least)
     }
 
     /// The factor [`PassSize::for_budget`] multiplies the global photons of `size` by, for a
@@ -732,6 +736,8 @@ mod tests {
             planar.pass_seconds(&tight) <= full / PLANNED_PASSES * 1.0001,
             "{tight:?}"
         );
+        // Too little room even for half the samples: nothing given up here (shrink decides).
+        assert_eq!(requested().for_budget(&planar, full / 4.0).spp, 4);
         // Not where the planes count few photons, nor where caustics carry much light.
         assert_eq!(requested().for_budget(&curved, full).spp, 4);
         let caustic = Costs {
