@@ -659,6 +659,33 @@ impl LayerTexture {
     }
 }
 
+/// A summed-area table of a `w × h` grid: the sum over any rectangle of cells in four reads
+/// (f64, so that sums over a 128×128 grid of counts keep their units).
+struct SummedArea {
+    w: usize,
+    s: Vec<f64>,
+}
+
+impl SummedArea {
+    fn new(w: usize, h: usize, v: impl Fn(usize) -> f64) -> Self {
+        let mut s = vec![0.0f64; (w + 1) * (h + 1)];
+        for y in 0..h {
+            let mut row = 0.0;
+            for x in 0..w {
+                row += v(y * w + x);
+                s[(y + 1) * (w + 1) + x + 1] = s[y * (w + 1) + x + 1] + row;
+            }
+        }
+        SummedArea { w, s }
+    }
+
+    /// The sum over cells `x0..x1` × `y0..y1`.
+    fn sum(&self, x0: usize, y0: usize, x1: usize, y1: usize) -> f64 {
+        let w = self.w + 1;
+        self.s[y1 * w + x1] - self.s[y0 * w + x1] - self.s[y1 * w + x0] + self.s[y0 * w + x0]
+    }
+}
+
 /// Photons the cells around an edge cell must hold before their flux density says how much
 /// of it is lit ([`edge_areas`]).
 const EDGE_PHOTONS: f32 = 16.0;
@@ -684,22 +711,8 @@ fn edge_areas(w: usize, h: usize, dark: &[bool], lums: &[f32], counts: &[f32], a
     if !on_edge.iter().any(|&e| e) {
         return Vec::new();
     }
-    let inner = |v: &[f32], i: usize| if dark[i] || on_edge[i] { 0.0 } else { v[i] as f64 };
-    let sat = |v: &[f32]| {
-        let mut s = vec![0.0f64; (w + 1) * (h + 1)];
-        for y in 0..h {
-            let mut row = 0.0;
-            for x in 0..w {
-                row += inner(v, y * w + x);
-                s[(y + 1) * (w + 1) + x + 1] = s[y * (w + 1) + x + 1] + row;
-            }
-        }
-        s
-    };
-    let (sl, sn, sa) = (sat(lums), sat(counts), sat(areas));
-    let sum = |s: &[f64], x0: usize, y0: usize, x1: usize, y1: usize| {
-        s[y1 * (w + 1) + x1] - s[y0 * (w + 1) + x1] - s[y1 * (w + 1) + x0] + s[y0 * (w + 1) + x0]
-    };
+    let inner = |v: &[f32]| SummedArea::new(w, h, |i| if dark[i] || on_edge[i] { 0.0 } else { v[i] as f64 });
+    let (sl, sn, sa) = (inner(lums), inner(counts), inner(areas));
     (0..w * h)
         .filter(|&i| on_edge[i])
         .filter_map(|i| {
@@ -711,9 +724,9 @@ fn edge_areas(w: usize, h: usize, dark: &[bool], lums: &[f32], counts: &[f32], a
                     (x + r + 1).min(w),
                     (y + r + 1).min(h),
                 );
-                let (n, a) = (sum(&sn, x0, y0, x1, y1), sum(&sa, x0, y0, x1, y1));
+                let (n, a) = (sn.sum(x0, y0, x1, y1), sa.sum(x0, y0, x1, y1));
                 (n >= EDGE_PHOTONS as f64 && a > 0.0).then(|| {
-                    let density = sum(&sl, x0, y0, x1, y1) / a;
+                    let density = sl.sum(x0, y0, x1, y1) / a;
                     (
                         i,
                         if density > 0.0 {
@@ -748,23 +761,8 @@ pub fn dark_cells(w: usize, h: usize, counts: &[f32], covered: &[bool]) -> Vec<b
     if counts.iter().all(|&c| c <= 0.0) {
         return dark;
     }
-    // Summed-area tables of the counts and of the covered cells.
-    let sat = |v: &dyn Fn(usize) -> f64| {
-        let mut s = vec![0.0f64; (w + 1) * (h + 1)];
-        for y in 0..h {
-            let mut row = 0.0;
-            for x in 0..w {
-                row += v(y * w + x);
-                s[(y + 1) * (w + 1) + x + 1] = s[y * (w + 1) + x + 1] + row;
-            }
-        }
-        s
-    };
-    let n = sat(&|i| counts[i] as f64);
-    let a = sat(&|i| if covered[i] { 1.0 } else { 0.0 });
-    let sum = |s: &[f64], x0: usize, y0: usize, x1: usize, y1: usize| {
-        s[y1 * (w + 1) + x1] - s[y0 * (w + 1) + x1] - s[y1 * (w + 1) + x0] + s[y0 * (w + 1) + x0]
-    };
+    let n = SummedArea::new(w, h, |i| counts[i] as f64);
+    let a = SummedArea::new(w, h, |i| if covered[i] { 1.0 } else { 0.0 });
     for b in DARK_WINDOWS.into_iter().filter(|&b| b <= w && b <= h) {
         let (ww, wh) = (w - b + 1, h - b + 1);
         // Empty windows, by their top-left cell.
@@ -772,15 +770,15 @@ pub fn dark_cells(w: usize, h: usize, counts: &[f32], covered: &[bool]) -> Vec<b
             .into_par_iter()
             .map(|i| {
                 let (x, y) = (i % ww, i / ww);
-                let inside = sum(&a, x, y, x + b, y + b);
-                if inside <= 0.0 || sum(&n, x, y, x + b, y + b) > 0.0 {
+                let inside = a.sum(x, y, x + b, y + b);
+                if inside <= 0.0 || n.sum(x, y, x + b, y + b) > 0.0 {
                     return 0.0;
                 }
                 let (x0, y0) = (x.saturating_sub(b), y.saturating_sub(b));
                 let (x1, y1) = ((x + 2 * b).min(w), (y + 2 * b).min(h));
-                let ring = sum(&a, x0, y0, x1, y1) - inside;
+                let ring = a.sum(x0, y0, x1, y1) - inside;
                 let expected = if ring > 0.0 {
-                    sum(&n, x0, y0, x1, y1) * inside / ring
+                    n.sum(x0, y0, x1, y1) * inside / ring
                 } else {
                     0.0
                 };
@@ -795,14 +793,7 @@ pub fn dark_cells(w: usize, h: usize, counts: &[f32], covered: &[bool]) -> Vec<b
             continue;
         }
         // A cell is dark when a window containing it is.
-        let mut se = vec![0.0f64; (ww + 1) * (wh + 1)];
-        for y in 0..wh {
-            let mut row = 0.0;
-            for x in 0..ww {
-                row += empty[y * ww + x];
-                se[(y + 1) * (ww + 1) + x + 1] = se[y * (ww + 1) + x + 1] + row;
-            }
-        }
+        let se = SummedArea::new(ww, wh, |i| empty[i]);
         dark.par_iter_mut().enumerate().for_each(|(i, d)| {
             let (x, y) = (i % w, i / w);
             if *d || !covered[i] {
@@ -810,11 +801,7 @@ pub fn dark_cells(w: usize, h: usize, counts: &[f32], covered: &[bool]) -> Vec<b
             }
             let (x0, y0) = ((x + 1).saturating_sub(b), (y + 1).saturating_sub(b));
             let (x1, y1) = ((x + 1).min(ww), (y + 1).min(wh));
-            if x1 > x0
-                && y1 > y0
-                && se[y1 * (ww + 1) + x1] - se[y0 * (ww + 1) + x1] - se[y1 * (ww + 1) + x0] + se[y0 * (ww + 1) + x0]
-                    > 0.0
-            {
+            if x1 > x0 && y1 > y0 && se.sum(x0, y0, x1, y1) > 0.0 {
                 *d = true;
             }
         });
