@@ -902,7 +902,7 @@ impl GridState {
                     };
                     let probes = Probes {
                         buried: &|p, n| inside_solid(scene, accel, p, n),
-                        clearance: &|p, n| clearance(scene, accel, p, n, params.max_radius),
+                        clearance: &|p, n, counts| clearance(scene, accel, p, n, params.max_radius, counts),
                     };
                     let g = MultiscaleGrids::build(set, &tris, photons, triangles, &params, &probes, emitted);
                     for line in g.describe() {
@@ -925,14 +925,24 @@ impl GridState {
 
 /// The open space in front of a surface point `p` with front normal `n`, up to `reach`: the
 /// nearest surface along the normal and four directions 45° off it (a shelf board standing
-/// out of a wall above the point is met by the ray leaning up).
-fn clearance(scene: &Scene, accel: &Accel, p: glam::Vec3, n: glam::Vec3, reach: f32) -> f32 {
+/// out of a wall above the point is met by the ray leaning up) met at a point `counts` accepts.
+fn clearance(
+    scene: &Scene,
+    accel: &Accel,
+    p: glam::Vec3,
+    n: glam::Vec3,
+    reach: f32,
+    counts: &dyn Fn(glam::Vec3) -> bool,
+) -> f32 {
     let eps = crate::surface::offset_eps(p.abs().max_element(), scene.bounds.diagonal());
     let (u, v) = crate::sampling::basis(n);
     let o = p + n * eps;
     [n, n + u, n - u, n + v, n - v]
         .iter()
-        .filter_map(|&d| accel.intersect(o, d.normalize(), reach))
+        .filter_map(|&d| {
+            let d = d.normalize();
+            accel.intersect(o, d, reach).filter(|hit| counts(o + d * hit.t))
+        })
         .map(|hit| hit.t)
         .fold(f32::INFINITY, f32::min)
 }

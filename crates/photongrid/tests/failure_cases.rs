@@ -759,17 +759,17 @@ const BASELINE: &[(&str, &str, [f64; 4])] = &[
     (
         "corner",
         "0–2 cm from wall: rel. error",
-        [-0.2711, -0.3807, -0.2469, 0.0239],
+        [-0.2711, -0.3807, -0.2469, 0.0306],
     ),
     (
         "corner",
         "2–6 cm from wall: rel. error",
-        [0.0037, -0.1429, 0.0064, 0.0230],
+        [0.0037, -0.1429, 0.0064, 0.0177],
     ),
     (
         "corner",
         "6–15 cm from wall: rel. error",
-        [0.0069, 0.0030, 0.0066, 0.0029],
+        [0.0069, 0.0030, 0.0066, 0.0075],
     ),
     (
         "corner",
@@ -918,10 +918,11 @@ fn docs(report: &Report) -> String {
          dark cells (no direct or caustic photon where the light around says dozens should be), \
          so it divides light by the surface it falls on, and it takes a direct-light cell on a \
          shadow's edge as lit by the share its photons' flux says against the cells around it: \
-         within about 2.5 % at the nose, the corner and the lit side of a shadow edge (the \
-         nose and the lit band within their standard errors of about 1.5 and 0.9 %, the corner \
-         +2.3 to +2.4 % ± 1.2 % within 6 cm of the wall), no leak, a shadow edge as wide as the \
-         truth.\n\
+         within their standard errors at the nose and the lit side of a shadow edge (about 1.5 \
+         and 0.9 %), +3.1 % ± 1.1 % within 2 cm of a corner's wall and +1.8 % ± 0.6 % at 2–6 cm, \
+         no leak, a shadow edge as wide as the truth. Direct-light kernels stop at a wall only \
+         where the plane runs on behind it, so at a corner they widen up to the wall: per-pixel \
+         σ within 2 cm of it 8 % (kNN k = 100: 9 %).\n\
          - **Shadows and walls leak**: the gather reaches photons of the same orientation on the \
          other side of an occluder (same plane, same normal), so light spreads into the shadow by \
          about the gather radius and reaches, ever weaker, up to the largest gather radius \

@@ -737,7 +737,7 @@ mod tests {
         }
         let probes = Probes {
             buried: &|_, _| false,
-            clearance: &|_, _| f32::INFINITY,
+            clearance: &|_, _, _| f32::INFINITY,
         };
         let params = MultiscaleParams {
             max_radius: 0.5,

@@ -913,8 +913,43 @@ pub struct Probes<'a> {
     /// never receives light nor is seen, so it is not counted as surface.
     pub buried: &'a (dyn Fn(Vec3, Vec3) -> bool + Sync),
     /// The open space in front of `p` (m): how far a kernel may reach there before it spans
-    /// light that something standing near the plane changes.
-    pub clearance: &'a (dyn Fn(Vec3, Vec3) -> f32 + Sync),
+    /// light that something standing near the plane changes. Only surfaces met at points the
+    /// third argument accepts count.
+    pub clearance: &'a (dyn Fn(Vec3, Vec3, &dyn Fn(Vec3) -> bool) -> f32 + Sync),
+}
+
+/// What a layer's kernels are stopped by ([`set_clearance`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Obstacles {
+    /// Every surface in front of the plane: indirect light changes next to anything nearby.
+    All,
+    /// Surfaces the plane runs on behind (a wall standing on a floor that continues past
+    /// it, a box on the floor) or overhead: direct light is the same up to a wall where the
+    /// plane ends (a room's corner), and kernels cut there by the plane's edge lose nothing,
+    /// while stopping them at the wall left a few photons per kernel (pixel noise of 50 %).
+    Standing,
+}
+
+/// Whether `plane` has surface (`cells` with area) behind the point `hit` seen from `p`
+/// within `reach` (m) of `p`: along the in-plane direction from `p` to `hit`'s foot, from one
+/// cell past the foot (the foot's own cell is partly covered). A hit overhead (its foot
+/// within half a cell of `p`) counts as standing.
+fn stands_on_plane(plane: &Plane, cells: &[Texel], p: Vec3, hit: Vec3, reach: f32) -> bool {
+    let (x0, y0) = plane.grid_coords(p);
+    let (x1, y1) = plane.grid_coords(hit);
+    let (dx, dy) = (x1 - x0, y1 - y0);
+    let len = (dx * dx + dy * dy).sqrt();
+    if !(len >= 0.5) {
+        return true;
+    }
+    // Cells along the way, out to the farthest a kernel reaches from `p` (and one more).
+    let cell = (plane.size_u / plane.res_u.max(1) as f32).min(plane.size_v / plane.res_v.max(1) as f32);
+    let last = ((reach / cell).min(4096.0) + 1.0 - len).ceil().max(1.0) as usize;
+    let (w, h) = (plane.res_u as f32, plane.res_v as f32);
+    (1..=last).any(|k| {
+        let (x, y) = (x1 + dx / len * k as f32, y1 + dy / len * k as f32);
+        x >= 0.0 && y >= 0.0 && x < w && y < h && cells[plane.grid_cell(x, y)].area > 0.0
+    })
 }
 
 /// Fine cells per side of the blocks that share one clearance probe: the clearance bounds
@@ -922,9 +957,10 @@ pub struct Probes<'a> {
 /// probing every cell (five rays each) took most of the grids' build.
 const CLEARANCE_BLOCK: usize = 4;
 
-/// The open space in front of each covered cell of `plane` (`Texel::clearance`), probed once
-/// per block of [`CLEARANCE_BLOCK`]² cells at the centroid of its covered cells' centres.
-fn set_clearance(plane: &Plane, cells: &mut [Texel], clearance: &(dyn Fn(Vec3, Vec3) -> f32 + Sync)) {
+/// The open space in front of each covered cell of `plane` (`Texel::clearance`) up to the
+/// `obstacles` its layer is stopped by, probed once per block of [`CLEARANCE_BLOCK`]² cells
+/// at the centroid of its covered cells' centres.
+fn set_clearance(plane: &Plane, cells: &mut [Texel], probes: &Probes<'_>, obstacles: Obstacles, reach: f32) {
     let (w, h) = (plane.res_u, plane.res_v);
     let (bw, bh) = (w.div_ceil(CLEARANCE_BLOCK), h.div_ceil(CLEARANCE_BLOCK));
     let cells_of = |b: usize| {
@@ -932,19 +968,25 @@ fn set_clearance(plane: &Plane, cells: &mut [Texel], clearance: &(dyn Fn(Vec3, V
         (by..(by + CLEARANCE_BLOCK).min(h))
             .flat_map(move |y| (bx..(bx + CLEARANCE_BLOCK).min(w)).map(move |x| y * w + x))
     };
+    let covered: &[Texel] = cells;
     let probed: Vec<f32> = (0..bw * bh)
         .into_par_iter()
         .map(|b| {
             let (mut sum, mut n) = ((0.0f32, 0.0f32), 0.0f32);
-            for c in cells_of(b).filter(|&c| cells[c].area > 0.0) {
+            for c in cells_of(b).filter(|&c| covered[c].area > 0.0) {
                 sum.0 += (c % w) as f32 + 0.5;
                 sum.1 += (c / w) as f32 + 0.5;
                 n += 1.0;
             }
-            if n > 0.0 {
-                clearance(plane.grid_to_world(sum.0 / n, sum.1 / n), plane.normal)
-            } else {
-                0.0
+            if n == 0.0 {
+                return 0.0;
+            }
+            let p = plane.grid_to_world(sum.0 / n, sum.1 / n);
+            match obstacles {
+                Obstacles::All => (probes.clearance)(p, plane.normal, &|_| true),
+                Obstacles::Standing => {
+                    (probes.clearance)(p, plane.normal, &|hit| stands_on_plane(plane, covered, p, hit, reach))
+                }
             }
         })
         .collect();
@@ -1048,8 +1090,10 @@ impl MultiscaleGrids {
                     // wall standing on a floor that runs on behind it, a box's shadow), so
                     // its kernels stop at the open space in front; caustics choose their
                     // scale from their own sharp structure.
-                    if l != CAUSTIC {
-                        set_clearance(&plane, &mut area, probes.clearance);
+                    match l {
+                        CAUSTIC => {}
+                        DIRECT => set_clearance(&plane, &mut area, probes, Obstacles::Standing, params.max_radius),
+                        _ => set_clearance(&plane, &mut area, probes, Obstacles::All, params.max_radius),
                     }
                     LayerTexture::new(plane, sizing, area, Edges::of_layer(l))
                 })
@@ -1666,7 +1710,7 @@ mod tests {
         );
         let probes = Probes {
             buried: &|_, _| false,
-            clearance: &|_, _| f32::INFINITY,
+            clearance: &|_, _, _| f32::INFINITY,
         };
         let g = MultiscaleGrids::build(set, &tris, &[photon], &[0], &MultiscaleParams::default(), &probes, None);
         let tex = &g.textures[0][INDIRECT];
@@ -1698,7 +1742,7 @@ mod tests {
         let triangles = vec![0; photons.len()];
         let probes = Probes {
             buried: &|_, _| false,
-            clearance: &|_, _| f32::INFINITY,
+            clearance: &|_, _, _| f32::INFINITY,
         };
         let g = MultiscaleGrids::build(
             set.clone(),
@@ -1746,7 +1790,7 @@ mod tests {
         let photons = lattice_photons();
         let probes = Probes {
             buried: &|_, _| false,
-            clearance: &|p: Vec3, _| (p.x - 1.1).abs() * std::f32::consts::SQRT_2,
+            clearance: &|p: Vec3, _, _| (p.x - 1.1).abs() * std::f32::consts::SQRT_2,
         };
         let triangles = vec![0; photons.len()];
         let g = MultiscaleGrids::build(
@@ -1785,6 +1829,50 @@ mod tests {
     }
 
     #[test]
+    fn direct_kernels_stop_at_a_wall_the_plane_runs_on_behind_but_not_at_one_where_it_ends() {
+        // A wall across x = `wall`, met by the 45° probe leaning towards it at the height of
+        // the point's distance from it (the square's normal is +y).
+        let clearance_at = |wall: f32, x: f32, layer: usize| {
+            let probe = move |p: Vec3, _: Vec3, counts: &dyn Fn(Vec3) -> bool| {
+                let d = (p.x - wall).abs();
+                if counts(Vec3::new(wall, d, p.z)) {
+                    d * std::f32::consts::SQRT_2
+                } else {
+                    f32::INFINITY
+                }
+            };
+            let probes = Probes {
+                buried: &|_, _| false,
+                clearance: &probe,
+            };
+            let tris = square(2.0);
+            let set = detect_planes(&tris, &PlaneParams::default());
+            let photons = lattice_photons();
+            let triangles = vec![0; photons.len()];
+            let params = MultiscaleParams {
+                max_radius: 0.5,
+                ..MultiscaleParams::default()
+            };
+            let g = MultiscaleGrids::build(set, &tris, &photons, &triangles, &params, &probes, None);
+            let t = &g.textures[0][layer];
+            let cell = t.plane.cell_of(Vec3::new(x, 0.0, 1.0), 0.0).unwrap();
+            t.levels[0].texels[cell].clearance
+        };
+        // The floor runs on behind a wall standing across it: both layers stop there.
+        for layer in [DIRECT, INDIRECT] {
+            let c = clearance_at(1.1, 0.9, layer);
+            assert!(
+                c < 1.0,
+                "layer {layer}: clearance {c} before a wall standing on the plane"
+            );
+        }
+        // A wall at the floor's edge (a room's corner): indirect light still stops, direct
+        // light, the same up to the wall, does not.
+        assert!(clearance_at(2.0, 1.9, INDIRECT) < 1.0);
+        assert_eq!(clearance_at(2.0, 1.9, DIRECT), f32::INFINITY);
+    }
+
+    #[test]
     fn indirect_photons_too_deep_for_gathering_have_their_own_layer() {
         let at = |kind, depth| Photon::new(Vec3::ZERO, Rgb::ONE, Vec3::Y, Vec3::Y, kind).with_depth(depth);
         assert_eq!(layer_of(&at(PhotonKind::Indirect, 10), 12), INDIRECT);
@@ -1819,7 +1907,7 @@ mod tests {
         };
         let probes = Probes {
             buried: &|_, _| false,
-            clearance: &|_, _| f32::INFINITY,
+            clearance: &|_, _, _| f32::INFINITY,
         };
         let emitted = |n| Some(Emitted { global: n, caustic: 0 });
         let (p1, t1) = field(40_000, 1.0, 1);
@@ -1871,7 +1959,7 @@ mod tests {
         }
         let probes = Probes {
             buried: &|_, _| false,
-            clearance: &|_, _| f32::INFINITY,
+            clearance: &|_, _, _| f32::INFINITY,
         };
         let g = MultiscaleGrids::build(set, &tris, &photons, &tri, &MultiscaleParams::default(), &probes, None);
         let tex = &g.textures[0][INDIRECT];
