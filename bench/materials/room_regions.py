@@ -2,7 +2,7 @@
 Principled-vs-glTF model difference from this renderer's error).
 
     python3 bench/materials/room_regions.py masks OUTDIR [BIN]
-        per room (mat_spheres, mat_punctual) and material, a GLB in which only that material
+        per room (mat_spheres, mat_punctual, mat_leaves) and material, a GLB in which only that material
         is emissive (1, everything else black), rendered by BIN (default
         target/release/photongrid) at 320x240 with --photons 0: OUTDIR/<scene>_<material>.exr
     python3 bench/materials/room_regions.py lambert SCENE OUT.glb [flat]
@@ -29,7 +29,7 @@ sys.path.insert(0, os.path.join(HERE, '..', '..', '..', 'shared', 'tools'))
 sys.path.insert(0, HERE)
 from punctual_regions import BLACK, emissive, read_glb, write_glb  # noqa: E402
 
-ROOMS = ['mat_spheres', 'mat_punctual']
+ROOMS = ['mat_spheres', 'mat_punctual', 'mat_leaves']
 BLOCK = 8
 
 
