@@ -926,7 +926,7 @@ enum Obstacles {
     /// Surfaces the plane runs on behind (a wall standing on a floor that continues past
     /// it, a box on the floor) or overhead: direct light is the same up to a wall where the
     /// plane ends (a room's corner), and kernels cut there by the plane's edge lose nothing,
-    /// while stopping them at the wall left a few photons per kernel (pixel noise of 50 %).
+    /// while stopping them at the wall left them few photons (docs/multiscale.md, "Clearance").
     Standing,
 }
 
