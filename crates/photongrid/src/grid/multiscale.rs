@@ -946,10 +946,11 @@ fn stands_on_plane(plane: &Plane, cells: &[Texel], p: Vec3, hit: Vec3, reach: f3
     let cell = (plane.size_u / plane.res_u.max(1) as f32).min(plane.size_v / plane.res_v.max(1) as f32);
     let last = ((reach / cell).min(4096.0) + 1.0 - len).ceil().max(1.0) as usize;
     let (w, h) = (plane.res_u as f32, plane.res_v as f32);
-    (1..=last).any(|k| {
-        let (x, y) = (x1 + dx / len * k as f32, y1 + dy / len * k as f32);
-        x >= 0.0 && y >= 0.0 && x < w && y < h && cells[plane.grid_cell(x, y)].area > 0.0
-    })
+    // A straight line that leaves the grid does not come back: stop there.
+    (1..=last)
+        .map(|k| (x1 + dx / len * k as f32, y1 + dy / len * k as f32))
+        .take_while(|&(x, y)| x >= 0.0 && y >= 0.0 && x < w && y < h)
+        .any(|(x, y)| cells[plane.grid_cell(x, y)].area > 0.0)
 }
 
 /// Fine cells per side of the blocks that share one clearance probe: the clearance bounds
