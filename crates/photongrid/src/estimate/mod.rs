@@ -96,6 +96,10 @@ pub struct Query {
     /// a pixel would otherwise be counted over discs reaching them from beside the line, more
     /// than once in total (a kNN disc is not a partition of the light).
     pub footprint: f32,
+    /// The point reflects glossily what it stores: final gathering evaluates its lobe, where
+    /// the photons' estimate takes it as diffuse, so gathering supplies its indirect light
+    /// unless the photons' is a negligible part of the light.
+    pub glossy: bool,
 }
 
 /// The grids an estimate may read (those its [`Needs`] asked for).
@@ -150,6 +154,8 @@ pub enum Estimator<'a> {
         direct: bool,
         /// Final gathering is on: near plane edges it supplies indirect light.
         gathering: bool,
+        /// Final-gather rays per pixel and pass (camera samples × gather rays).
+        gather_rays: f32,
     },
     /// SPPM: each camera sample keeps its own radius ([`sppm::SppmPixel`]); a query gives the
     /// kNN radius that starts it.
@@ -181,6 +187,7 @@ impl<'a> Estimator<'a> {
                 gamma: Gammas::of_settings(settings),
                 direct: settings.direct == crate::settings::DirectLighting::Photons,
                 gathering: settings.effective_gather() > 0,
+                gather_rays: (settings.spp * settings.effective_gather()) as f32,
             },
             Method::Adaptive => {
                 let (n_all, k) = progressive_neighbours(k, pass);
@@ -248,12 +255,14 @@ impl<'a> Estimator<'a> {
                 gamma,
                 direct,
                 gathering,
+                gather_rays,
             } => {
                 // With final gathering the map holds caustics only: its photons within a disc
                 // resolve a caustic finer than the grids' finest texel.
                 let mut finer = |r: f32| map.within(q.position, q.facing_normal, r);
                 let finer = gathering.then_some(&mut finer as &mut dyn FnMut(f32) -> Gather);
-                let on_plane = grids.and_then(|g| multiscale::gather(g, q, gamma, direct, gathering, finer));
+                let on_plane =
+                    grids.and_then(|g| multiscale::gather(g, q, gamma, direct, gathering, gather_rays, finer));
                 match on_plane {
                     Some(g) => g,
                     None => {

@@ -242,19 +242,33 @@ pub const INTERIOR_COVERAGE: f32 = 0.9;
 const MIN_INDIRECT_PHOTONS: f32 = 64.0;
 
 /// The most relative noise, as a share of all the light at the point, that the photons'
-/// indirect estimate may bring where final gathering could supply it instead. Its blotches
-/// are a kernel wide and do not average out over pixels or passes, while gathering's
-/// grain does (docs/time_budget.md, "Gathering where the photons' blotches would show").
+/// indirect estimate may bring where final gathering could supply it instead, whatever the
+/// gather rays: its blotches are a kernel wide and do not average out over pixels, while
+/// gathering's grain does (docs/time_budget.md, "Gathering where the photons' blotches would
+/// show").
 const INDIRECT_NOISE: f32 = 0.005;
 
-/// Whether a kernel's `photons` (over all passes) make its `indirect` irradiance (luminance)
-/// quiet enough beside the point's `other` light (direct and caustic): its relative noise
-/// 1/√photons, times indirect light's share of the point's light, at most [`INDIRECT_NOISE`],
-/// and at least [`MIN_INDIRECT_PHOTONS`].
-pub fn photons_suffice(indirect: f32, other: f32, photons: f32) -> bool {
+/// Photons per final-gather ray (both over all passes) from which a kernel's indirect estimate
+/// is used however large a share of the light it is. The kernel's relative noise 1/√N and the
+/// gathered estimate's σ/√R scale alike with that share; over an 8×8 block gathering's grain
+/// falls 8× more, so the photons win the block where N ≥ 64 R / σ² (σ: a gather ray's relative
+/// spread). Measured, not derived: 16 gave cornell_glass's lowest block error, and the rooms
+/// of bench/materials at 512 gather rays per pixel are unchanged (docs/multiscale.md,
+/// "Photons or gathering, by the gather rays").
+const PHOTONS_PER_GATHER_RAY: f32 = 16.0;
+
+/// Whether a kernel's `photons` make its `indirect` irradiance (luminance) quiet enough beside
+/// the point's `other` light (direct and caustic) and the `gather_rays` per pixel that final
+/// gathering would spend instead (both over all passes; infinite where gathering is preferred
+/// on other grounds): at least [`MIN_INDIRECT_PHOTONS`], and either its relative noise
+/// 1/√photons times indirect light's share of the point's light at most [`INDIRECT_NOISE`] or
+/// at least [`PHOTONS_PER_GATHER_RAY`] photons per gather ray.
+pub fn photons_suffice(indirect: f32, other: f32, photons: f32, gather_rays: f32) -> bool {
     let total = indirect + other;
     let share = if total > 0.0 { indirect / total } else { 1.0 };
-    photons >= MIN_INDIRECT_PHOTONS && share * share <= INDIRECT_NOISE * INDIRECT_NOISE * photons
+    photons >= MIN_INDIRECT_PHOTONS
+        && (share * share <= INDIRECT_NOISE * INDIRECT_NOISE * photons
+            || photons >= PHOTONS_PER_GATHER_RAY * gather_rays)
 }
 
 impl MultiscaleGrids {
@@ -568,14 +582,16 @@ fn caustic_estimate(
 /// The photons' irradiance at a visible point `q` as a [`Gather`] (flux over a disc of the
 /// kernel's area): caustics always, direct light when `direct` (the single-map setting), and
 /// indirect light unless final gathering (`gathering`) does better here. None off the planes.
-/// `finer`, when given, gathers this pass's caustic photons within a radius of `q`, read where
-/// a caustic is finer than the finest texel ([`finer_than_texels`]).
+/// `gather_rays` (per pixel and pass) is what gathering would spend instead
+/// ([`photons_suffice`]). `finer`, when given, gathers this pass's caustic photons within a
+/// radius of `q`, read where a caustic is finer than the finest texel ([`finer_than_texels`]).
 pub fn gather(
     grids: &MultiscaleGrids,
     q: &Query,
     gamma: Gammas,
     direct: bool,
     gathering: bool,
+    gather_rays: f32,
     finer: Option<&mut dyn FnMut(f32) -> Gather>,
 ) -> Option<Gather> {
     let tex = grids.texture_facing(q.triangle, q.facing_normal)?;
@@ -618,6 +634,7 @@ pub fn gather(
                 crate::luminance(i.irradiance),
                 crate::luminance(direct_light() + caustic_light),
                 i.count * passes,
+                if q.glossy { f32::INFINITY } else { gather_rays * passes },
             )
         });
         (i.filter(|_| enough), !enough)
@@ -661,18 +678,32 @@ mod tests {
     #[test]
     fn the_photons_indirect_estimate_needs_more_photons_where_it_is_more_of_the_light() {
         let n = 1.0 / (INDIRECT_NOISE * INDIRECT_NOISE);
+        let no_rays = f32::INFINITY;
         // Only indirect light: 1/√N at most INDIRECT_NOISE.
-        assert!(photons_suffice(1.0, 0.0, n));
-        assert!(!photons_suffice(1.0, 0.0, 0.9 * n));
+        assert!(photons_suffice(1.0, 0.0, n, no_rays));
+        assert!(!photons_suffice(1.0, 0.0, 0.9 * n, no_rays));
         // Half the light: a quarter of the photons (above the floor).
         assert!(0.25 * n > MIN_INDIRECT_PHOTONS);
-        assert!(photons_suffice(0.5, 0.5, 0.25 * n * 1.001));
-        assert!(!photons_suffice(0.5, 0.5, 0.24 * n));
+        assert!(photons_suffice(0.5, 0.5, 0.25 * n * 1.001, no_rays));
+        assert!(!photons_suffice(0.5, 0.5, 0.24 * n, no_rays));
         // Never below the floor, however little of the light it is.
-        assert!(!photons_suffice(1e-4, 1.0, MIN_INDIRECT_PHOTONS - 1.0));
-        assert!(photons_suffice(1e-4, 1.0, MIN_INDIRECT_PHOTONS));
+        assert!(!photons_suffice(1e-4, 1.0, MIN_INDIRECT_PHOTONS - 1.0, no_rays));
+        assert!(photons_suffice(1e-4, 1.0, MIN_INDIRECT_PHOTONS, no_rays));
         // No light at all: as if all of it were indirect.
-        assert!(!photons_suffice(0.0, 0.0, 0.5 * n));
+        assert!(!photons_suffice(0.0, 0.0, 0.5 * n, no_rays));
+    }
+
+    #[test]
+    fn few_gather_rays_leave_indirect_light_to_the_photons_sooner() {
+        // All of the light indirect, 1/√N far above INDIRECT_NOISE: the photons are used where
+        // they hold PHOTONS_PER_GATHER_RAY per gather ray, and never below the floor.
+        let rays = 32.0;
+        let n = PHOTONS_PER_GATHER_RAY * rays;
+        assert!(n < 0.1 / (INDIRECT_NOISE * INDIRECT_NOISE));
+        assert!(photons_suffice(1.0, 0.0, n, rays));
+        assert!(!photons_suffice(1.0, 0.0, 0.99 * n, rays));
+        assert!(!photons_suffice(1.0, 0.0, n, 16.0 * rays));
+        assert!(!photons_suffice(1.0, 0.0, MIN_INDIRECT_PHOTONS - 1.0, 0.0));
     }
 
     #[test]
@@ -766,6 +797,7 @@ mod tests {
             geometric_normal: Vec3::Y,
             triangle: 1,
             footprint: 0.0,
+            glossy: false,
         };
         for (max_depth, gathered_share) in [(12, 0.5), (0, 1.0)] {
             let mut k = 0u32;
@@ -778,10 +810,40 @@ mod tests {
             g.resolve_for_gathering(gammas);
             let gathered = g.irradiance(q.triangle, q.position, Vec3::Y, gammas).unwrap();
             assert!((gathered.x - gathered_share).abs() < 0.03, "{max_depth}: {gathered:?}");
-            let seen = gather(&g, &q, gammas, false, false, None).unwrap();
+            let seen = gather(&g, &q, gammas, false, false, 32.0, None).unwrap();
             let seen = seen.flux.x / (PI * seen.r2);
             assert!((seen - 1.0).abs() < 0.03, "{max_depth}: {seen}");
         }
+    }
+
+    /// Flat indirect light on a 2 m square, 20 000 photons: far too few for its noise to be
+    /// negligible, enough per gather ray when the pixel has one; a glossy point gathers anyway.
+    #[test]
+    fn the_gather_rays_and_a_glossy_lobe_decide_who_supplies_indirect_light() {
+        let n = 20_000;
+        let power = Rgb::splat(4.0 / n as f32);
+        let mut g = square_grids(n, 3, |rng| {
+            let at = p(rng.uniform() * 2.0, rng.uniform() * 2.0);
+            Some(Photon::new(at, power, Vec3::Y, Vec3::Y, PhotonKind::Indirect))
+        });
+        let gammas = Gammas {
+            global: 2.0,
+            caustic: 2.0,
+        };
+        g.resolve_for_gathering(gammas);
+        let q = Query {
+            position: p(1.0, 1.0),
+            facing_normal: Vec3::Y,
+            geometric_normal: Vec3::Y,
+            triangle: 1,
+            footprint: 0.0,
+            glossy: false,
+        };
+        let needs = |q: &Query, rays: f32| gather(&g, q, gammas, false, true, rays, None).unwrap().needs_gathering;
+        assert!(!needs(&q, 1.0), "one gather ray: the photons' estimate");
+        assert!(needs(&q, 1e4), "ten thousand gather rays: gathering");
+        let glossy = Query { glossy: true, ..q };
+        assert!(needs(&glossy, 1.0), "a glossy lobe: gathering");
     }
 
     /// A field rising linearly with x, sampled by photons on a 2 m square: at the square's
@@ -998,10 +1060,11 @@ mod tests {
                     geometric_normal: Vec3::Y,
                     triangle: 0,
                     footprint,
+                    glossy: false,
                 };
                 let mut disc = |r: f32| map.within(q.position, Vec3::Y, r);
                 let f = finer.then_some(&mut disc as &mut dyn FnMut(f32) -> Gather);
-                let got = gather(&g, &q, gammas, false, true, f).expect("on the plane");
+                let got = gather(&g, &q, gammas, false, true, 32.0, f).expect("on the plane");
                 e += got.flux.x / (PI * got.r2) / 20.0;
             }
             e

@@ -18,6 +18,7 @@ use super::Tracer;
 use crate::accel::Hit;
 use crate::bsdf::{self, GltfPoint, LobeMask};
 use crate::estimate::density::{density_radiance, photon_density};
+use crate::estimate::Query;
 use crate::film::Aov;
 use crate::sampling::Rng;
 use crate::scene::material::MetallicRoughness;
@@ -83,10 +84,13 @@ impl Tracer<'_> {
             Some(s) => s.weight,
             None => Rgb::ZERO,
         };
-        let e = self
-            .photons
-            .estimator
-            .gather(&super::query_at(sp, self.footprint), &mut self.knn);
+        let e = self.photons.estimator.gather(
+            &Query {
+                glossy: g.stored.reflection,
+                ..super::query_at(sp, self.footprint)
+            },
+            &mut self.knn,
+        );
         let mut l = density_radiance(albedo, e.flux, e.r2);
         if e.needs_gathering && self.settings.gather > 0 {
             // A glossy stored lobe reflects gathered light as its BSDF says (not gated on the

@@ -306,6 +306,7 @@ fn query_at(sp: &SurfacePoint, footprint: f32) -> Query {
         geometric_normal: sp.geometric_normal,
         triangle: sp.triangle,
         footprint,
+        glossy: false,
     }
 }
 
