@@ -487,6 +487,8 @@ struct PassLoop<'a> {
     accs: Vec<Accumulator>,
     render_seconds: Vec<f64>,
     grids: GridState,
+    /// Final-gather rays per pixel over the passes so far.
+    gather_rays: f32,
 }
 
 impl<'a> PassLoop<'a> {
@@ -516,6 +518,7 @@ impl<'a> PassLoop<'a> {
             accs,
             render_seconds: vec![0.0; cameras.len()],
             grids: GridState::default(),
+            gather_rays: 0.0,
         }
     }
 
@@ -527,8 +530,10 @@ impl<'a> PassLoop<'a> {
         let times = &mut report.seconds;
         let photons = trace_pass(scene, accel, settings, done, &mut self.grids, progress, times);
         report.memory.photon_map_bytes = report.memory.photon_map_bytes.max(photons.map.memory_bytes());
+        self.gather_rays += settings.spp as f32 * settings.effective_gather() as f32;
         let input = PhotonData {
-            estimator: Estimator::for_pass(settings, done, &photons.map, self.grids.view()),
+            estimator: Estimator::for_pass(settings, done, &photons.map, self.grids.view())
+                .with_gather_rays(self.gather_rays),
             irradiance: photons.irradiance.as_ref(),
         };
         let cut = Cut {
@@ -776,8 +781,12 @@ fn probe_costs(
         progress,
         &mut scratch,
     );
+    // The probe's few photons would hold few per gather ray and gather almost everywhere; it
+    // is read as the pass it stands for, with its gather rays scaled to its photons.
+    let share = probe.photons as f32 / requested.photons.max(1) as f32;
+    let rays = requested.spp as f32 * requested.gather as f32 * share;
     let input = PhotonData {
-        estimator: Estimator::for_pass(&probe_settings, 0, &photons.map, grids.view()),
+        estimator: Estimator::for_pass(&probe_settings, 0, &photons.map, grids.view()).with_gather_rays(rays),
         irradiance: photons.irradiance.as_ref(),
     };
     let (mut samples, mut plain, mut gathered, mut pixels) = (0u64, 0.0, 0.0, 0u64);

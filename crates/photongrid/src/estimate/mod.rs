@@ -98,7 +98,8 @@ pub struct Query {
     pub footprint: f32,
     /// The point reflects glossily what it stores: final gathering evaluates its lobe, where
     /// the photons' estimate takes it as diffuse, so gathering supplies its indirect light
-    /// unless the photons' is a negligible part of the light.
+    /// unless the photons' noise is negligible beside the point's light
+    /// ([`multiscale::photons_suffice`] without gather rays).
     pub glossy: bool,
 }
 
@@ -154,7 +155,8 @@ pub enum Estimator<'a> {
         direct: bool,
         /// Final gathering is on: near plane edges it supplies indirect light.
         gathering: bool,
-        /// Final-gather rays per pixel and pass (camera samples × gather rays).
+        /// Final-gather rays per pixel over the passes so far, this one included (camera
+        /// samples × gather rays; [`Estimator::with_gather_rays`]).
         gather_rays: f32,
     },
     /// SPPM: each camera sample keeps its own radius ([`sppm::SppmPixel`]); a query gives the
@@ -187,7 +189,7 @@ impl<'a> Estimator<'a> {
                 gamma: Gammas::of_settings(settings),
                 direct: settings.direct == crate::settings::DirectLighting::Photons,
                 gathering: settings.effective_gather() > 0,
-                gather_rays: (settings.spp * settings.effective_gather()) as f32,
+                gather_rays: settings.spp as f32 * settings.effective_gather() as f32,
             },
             Method::Adaptive => {
                 let (n_all, k) = progressive_neighbours(k, pass);
@@ -201,6 +203,16 @@ impl<'a> Estimator<'a> {
                 }
             }
         }
+    }
+
+    /// The estimator with `rays` final-gather rays per pixel over all passes so far (for_pass
+    /// counts this pass's only): where the photons' indirect estimate replaces gathering
+    /// depends on it ([`multiscale::photons_suffice`]).
+    pub fn with_gather_rays(mut self, rays: f32) -> Self {
+        if let Estimator::Multiscale { gather_rays, .. } = &mut self {
+            *gather_rays = rays;
+        }
+        self
     }
 
     /// This pass's photon map.

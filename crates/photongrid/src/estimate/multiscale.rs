@@ -248,21 +248,21 @@ const MIN_INDIRECT_PHOTONS: f32 = 64.0;
 /// show").
 const INDIRECT_NOISE: f32 = 0.005;
 
-/// Photons per final-gather ray (both over all passes) from which a kernel's indirect estimate
-/// is used however large a share of the light it is. The kernel's relative noise 1/√N and the
-/// gathered estimate's σ/√R scale alike with that share; over an 8×8 block gathering's grain
-/// falls 8× more, so the photons win the block where N ≥ 64 R / σ² (σ: a gather ray's relative
-/// spread). Measured, not derived: 16 gave cornell_glass's lowest block error, and the rooms
-/// of bench/materials at 512 gather rays per pixel are unchanged (docs/multiscale.md,
-/// "Photons or gathering, by the gather rays").
+/// Photons per final-gather ray (a kernel's photons over all passes, the pixel's gather rays
+/// over all passes) from which a kernel's indirect estimate is used however large a share of
+/// the light it is. The kernel's relative noise 1/√N and the gathered estimate's σ/√R scale
+/// alike with that share; over an 8×8 block gathering's grain falls 8× more, so the photons win
+/// the block where N ≥ 64 R / σ² (σ: a gather ray's relative spread, which depends on the
+/// scene). The value is measured: docs/multiscale.md, "Photons or gathering, by the gather
+/// rays".
 const PHOTONS_PER_GATHER_RAY: f32 = 16.0;
 
-/// Whether a kernel's `photons` make its `indirect` irradiance (luminance) quiet enough beside
-/// the point's `other` light (direct and caustic) and the `gather_rays` per pixel that final
-/// gathering would spend instead (both over all passes; infinite where gathering is preferred
-/// on other grounds): at least [`MIN_INDIRECT_PHOTONS`], and either its relative noise
-/// 1/√photons times indirect light's share of the point's light at most [`INDIRECT_NOISE`] or
-/// at least [`PHOTONS_PER_GATHER_RAY`] photons per gather ray.
+/// Whether a kernel's `photons` (over all passes) make its `indirect` irradiance (luminance)
+/// quiet enough beside the point's `other` light (direct and caustic) and the `gather_rays` per
+/// pixel (over all passes) that final gathering would spend instead (infinite where gathering
+/// is preferred on other grounds): at least [`MIN_INDIRECT_PHOTONS`], and either its relative
+/// noise 1/√photons times indirect light's share of the point's light at most
+/// [`INDIRECT_NOISE`] or at least [`PHOTONS_PER_GATHER_RAY`] photons per gather ray.
 pub fn photons_suffice(indirect: f32, other: f32, photons: f32, gather_rays: f32) -> bool {
     let total = indirect + other;
     let share = if total > 0.0 { indirect / total } else { 1.0 };
@@ -582,7 +582,7 @@ fn caustic_estimate(
 /// The photons' irradiance at a visible point `q` as a [`Gather`] (flux over a disc of the
 /// kernel's area): caustics always, direct light when `direct` (the single-map setting), and
 /// indirect light unless final gathering (`gathering`) does better here. None off the planes.
-/// `gather_rays` (per pixel and pass) is what gathering would spend instead
+/// `gather_rays` (per pixel, over all passes so far) is what gathering would spend instead
 /// ([`photons_suffice`]). `finer`, when given, gathers this pass's caustic photons within a
 /// radius of `q`, read where a caustic is finer than the finest texel ([`finer_than_texels`]).
 pub fn gather(
@@ -634,7 +634,7 @@ pub fn gather(
                 crate::luminance(i.irradiance),
                 crate::luminance(direct_light() + caustic_light),
                 i.count * passes,
-                if q.glossy { f32::INFINITY } else { gather_rays * passes },
+                if q.glossy { f32::INFINITY } else { gather_rays },
             )
         });
         (i.filter(|_| enough), !enough)
