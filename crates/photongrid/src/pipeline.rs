@@ -746,6 +746,33 @@ fn path_costs(stats: &PhotonStats, times: &PhaseTimes, probe: &PassSize) -> (f64
     )
 }
 
+/// The probe's pass: a [`PROBE_SHARE`]th of the `requested` photons (at least
+/// [`PROBE_MIN_PATHS`]), one sample per pixel, the requested gather rays.
+fn probe_size(requested: PassSize) -> PassSize {
+    let small = |n: usize| {
+        if n == 0 {
+            0
+        } else {
+            (n / PROBE_SHARE).max(PROBE_MIN_PATHS.min(n))
+        }
+    };
+    PassSize {
+        photons: small(requested.photons),
+        caustic_photons: small(requested.caustic_photons),
+        spp: 1,
+        gather: requested.gather,
+    }
+}
+
+/// The gather rays per pixel the `probe` pass is read with: the `requested` pass's, scaled by
+/// the probe's share of its photons. With its few photons at its own rays the probe would
+/// gather almost everywhere; so it gathers where the pass it times will
+/// ([`crate::estimate::multiscale::photons_suffice`]).
+fn probe_gather_rays(probe: PassSize, requested: PassSize) -> f32 {
+    let share = probe.photons as f32 / requested.photons.max(1) as f32;
+    requested.spp as f32 * requested.gather as f32 * share
+}
+
 /// The probe of [`plan_passes`]: a pass of a small share of the `requested` photons, then each
 /// camera at a reduced resolution without and with final gathering, each timed.
 fn probe_costs(
@@ -757,19 +784,7 @@ fn probe_costs(
     progress: &Progress<'_>,
 ) -> Costs {
     let t0 = Instant::now();
-    let small = |n: usize| {
-        if n == 0 {
-            0
-        } else {
-            (n / PROBE_SHARE).max(PROBE_MIN_PATHS.min(n))
-        }
-    };
-    let probe = PassSize {
-        photons: small(requested.photons),
-        caustic_photons: small(requested.caustic_photons),
-        spp: 1,
-        gather: requested.gather,
-    };
+    let probe = probe_size(requested);
     let probe_settings = probe.apply(settings);
     let (mut scratch, mut grids) = (PhaseTimes::default(), GridState::default());
     let photons = trace_pass(
@@ -781,12 +796,9 @@ fn probe_costs(
         progress,
         &mut scratch,
     );
-    // The probe's few photons would hold few per gather ray and gather almost everywhere; it
-    // is read as the pass it stands for, with its gather rays scaled to its photons.
-    let share = probe.photons as f32 / requested.photons.max(1) as f32;
-    let rays = requested.spp as f32 * requested.gather as f32 * share;
     let input = PhotonData {
-        estimator: Estimator::for_pass(&probe_settings, 0, &photons.map, grids.view()).with_gather_rays(rays),
+        estimator: Estimator::for_pass(&probe_settings, 0, &photons.map, grids.view())
+            .with_gather_rays(probe_gather_rays(probe, requested)),
         irradiance: photons.irradiance.as_ref(),
     };
     let (mut samples, mut plain, mut gathered, mut pixels) = (0u64, 0.0, 0.0, 0u64);
