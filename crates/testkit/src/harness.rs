@@ -379,6 +379,8 @@ pub struct Row {
     pub mean: f64,
     /// Standard deviation across seeds.
     pub std: f64,
+    /// Seeds measured (the bias's standard error is `std / √seeds`).
+    pub seeds: usize,
     /// Unit or scale shown ("%" multiplies by 100).
     pub unit: &'static str,
     /// Per-pixel RMS bias and RMS σ across seeds over the metric's pixels, relative to the
@@ -392,8 +394,14 @@ impl Row {
         self.mean - self.truth
     }
 
-    /// The figures of the tables: truth, mean, bias and σ across seeds in the row's unit, and
-    /// the pixel RMS bias and σ in % (`space` before the sign), empty when not measured.
+    /// Standard error of the bias: σ across seeds over √seeds.
+    pub fn standard_error(&self) -> f64 {
+        self.std / (self.seeds.max(1) as f64).sqrt()
+    }
+
+    /// The figures of the tables: truth, mean, bias ± its standard error and σ across seeds in
+    /// the row's unit, and the pixel RMS bias and σ in % (`space` before the sign), empty when
+    /// not measured.
     fn cells(&self, space: &str) -> [String; 6] {
         let (pb, pn) = match self.pixel {
             Some((b, n)) => (format!("{:.2}{space}%", 100.0 * b), format!("{:.2}{space}%", 100.0 * n)),
@@ -402,7 +410,11 @@ impl Row {
         [
             fmt_value(self.truth, self.unit, false),
             fmt_value(self.mean, self.unit, false),
-            fmt_value(self.bias(), self.unit, true),
+            format!(
+                "{} ± {}",
+                fmt_value(self.bias(), self.unit, true),
+                fmt_value(self.standard_error(), self.unit, false)
+            ),
             fmt_value(self.std, self.unit, false),
             pb,
             pn,
@@ -448,6 +460,7 @@ impl Report {
             truth,
             mean,
             std,
+            seeds: values.len(),
             unit,
             pixel: None,
         };
@@ -577,19 +590,19 @@ impl Report {
         let mut s = String::new();
         let _ = writeln!(
             s,
-            "{:<12} {:<30} {:<14} {:>10} {:>10} {:>10} {:>9} {:>8} {:>8}",
-            "case", "metric", "method", "truth", "mean", "bias", "σ seeds", "px bias", "px σ"
+            "{:<12} {:<30} {:<14} {:>10} {:>10} {:>20} {:>9} {:>8} {:>8}",
+            "case", "metric", "method", "truth", "mean", "bias ± s.e.", "σ seeds", "px bias", "px σ"
         );
         let mut last = "";
         for r in &self.rows {
             if r.case != last {
-                let _ = writeln!(s, "{}", "-".repeat(119));
+                let _ = writeln!(s, "{}", "-".repeat(129));
                 last = &r.case;
             }
             let [truth, mean, bias, std, pb, pn] = r.cells("");
             let _ = writeln!(
                 s,
-                "{:<12} {:<30} {:<14} {truth:>10} {mean:>10} {bias:>10} {std:>9} {pb:>8} {pn:>8}",
+                "{:<12} {:<30} {:<14} {truth:>10} {mean:>10} {bias:>20} {std:>9} {pb:>8} {pn:>8}",
                 r.case, r.metric, r.method,
             );
         }
@@ -614,7 +627,7 @@ impl Report {
             }
             let _ = writeln!(
                 s,
-                "| metric | method | truth | mean | bias | σ across seeds | pixel RMS bias | pixel RMS σ |"
+                "| metric | method | truth | mean | bias ± standard error | σ across seeds | pixel RMS bias | pixel RMS σ |"
             );
             let _ = writeln!(s, "|---|---|---:|---:|---:|---:|---:|---:|");
             for r in self.rows.iter().filter(|r| r.case == case) {
