@@ -763,50 +763,104 @@ pub fn dark_cells(w: usize, h: usize, counts: &[f32], covered: &[bool]) -> Vec<b
     }
     let n = SummedArea::new(w, h, |i| counts[i] as f64);
     let a = SummedArea::new(w, h, |i| if covered[i] { 1.0 } else { 0.0 });
+    // Most windows hold photons, and most empty ones lie in the dark far from any light: the
+    // side of the largest empty square at each cell skips the first, the ring's photons the
+    // second, before the areas are read.
+    let empty_side = empty_squares(w, h, counts);
     for b in DARK_WINDOWS.into_iter().filter(|&b| b <= w && b <= h) {
         let (ww, wh) = (w - b + 1, h - b + 1);
-        // Empty windows, by their top-left cell.
-        let empty: Vec<f64> = (0..ww * wh)
+        // Dark windows, by their top-left cell.
+        let windows: Vec<bool> = (0..ww * wh)
             .into_par_iter()
+            .with_min_len(1 << 12)
             .map(|i| {
                 let (x, y) = (i % ww, i / ww);
-                let inside = a.sum(x, y, x + b, y + b);
-                if inside <= 0.0 || n.sum(x, y, x + b, y + b) > 0.0 {
-                    return 0.0;
+                if (empty_side[y * w + x] as usize) < b {
+                    return false;
                 }
                 let (x0, y0) = (x.saturating_sub(b), y.saturating_sub(b));
                 let (x1, y1) = ((x + 2 * b).min(w), (y + 2 * b).min(h));
-                let ring = a.sum(x0, y0, x1, y1) - inside;
-                let expected = if ring > 0.0 {
-                    n.sum(x0, y0, x1, y1) * inside / ring
-                } else {
-                    0.0
-                };
-                if expected >= DARK_EXPECTED {
-                    1.0
-                } else {
-                    0.0
+                let around = n.sum(x0, y0, x1, y1);
+                if around <= 0.0 {
+                    return false;
                 }
+                let inside = a.sum(x, y, x + b, y + b);
+                if inside <= 0.0 {
+                    return false;
+                }
+                let ring = a.sum(x0, y0, x1, y1) - inside;
+                ring > 0.0 && around * inside / ring >= DARK_EXPECTED
             })
             .collect();
-        if empty.iter().all(|&e| e == 0.0) {
-            continue;
+        if windows.iter().any(|&d| d) {
+            mark_windows(&mut dark, w, h, &windows, b, covered);
         }
-        // A cell is dark when a window containing it is.
-        let se = SummedArea::new(ww, wh, |i| empty[i]);
-        dark.par_iter_mut().enumerate().for_each(|(i, d)| {
-            let (x, y) = (i % w, i / w);
-            if *d || !covered[i] {
-                return;
-            }
-            let (x0, y0) = ((x + 1).saturating_sub(b), (y + 1).saturating_sub(b));
-            let (x1, y1) = ((x + 1).min(ww), (y + 1).min(wh));
-            if x1 > x0 && y1 > y0 && se.sum(x0, y0, x1, y1) > 0.0 {
-                *d = true;
-            }
-        });
     }
     dark
+}
+
+/// Per cell of a `w × h` grid, the side of the largest square of cells holding no photon
+/// (`counts` 0) with that cell as its top-left corner.
+fn empty_squares(w: usize, h: usize, counts: &[f32]) -> Vec<u16> {
+    let mut side = vec![0u16; w * h];
+    for y in (0..h).rev() {
+        for x in (0..w).rev() {
+            if counts[y * w + x] > 0.0 {
+                continue;
+            }
+            let at = |x: usize, y: usize| if x < w && y < h { side[y * w + x] } else { 0 };
+            side[y * w + x] = 1 + at(x + 1, y).min(at(x, y + 1)).min(at(x + 1, y + 1));
+        }
+    }
+    side
+}
+
+/// Mark dark every `covered` cell of a `w × h` grid that a `b × b` window flagged in `windows`
+/// (by top-left cell, `(w − b + 1) × (h − b + 1)` of them) contains: the flags dilated by the
+/// window, along the rows and then along the columns.
+fn mark_windows(dark: &mut [bool], w: usize, h: usize, windows: &[bool], b: usize, covered: &[bool]) {
+    let (ww, wh) = (w - b + 1, h - b + 1);
+    // Per row of windows, the cells some window of the row spans.
+    let rows: Vec<bool> = windows
+        .par_chunks(ww)
+        .flat_map_iter(|row| {
+            let mut spans = vec![false; w];
+            let mut open = 0usize;
+            for x in 0..w {
+                if x < ww && row[x] {
+                    open = b;
+                }
+                if open > 0 {
+                    spans[x] = true;
+                    open -= 1;
+                }
+            }
+            spans
+        })
+        .collect();
+    // Down each column, the rows of windows up to b − 1 above: prefix sums per column.
+    let mut prefix = vec![0u32; (wh + 1) * w];
+    for y in 0..wh {
+        let (done, next) = prefix.split_at_mut((y + 1) * w);
+        for ((p, &q), &s) in next[..w].iter_mut().zip(&done[y * w..]).zip(&rows[y * w..(y + 1) * w]) {
+            *p = q + s as u32;
+        }
+    }
+    dark.par_chunks_mut(w)
+        .zip(covered.par_chunks(w))
+        .enumerate()
+        .for_each(|(y, (dark, covered))| {
+            let (lo, hi) = ((y + 1).saturating_sub(b), (y + 1).min(wh));
+            if lo >= hi {
+                return;
+            }
+            let (top, bottom) = (&prefix[lo * w..(lo + 1) * w], &prefix[hi * w..(hi + 1) * w]);
+            for x in 0..w {
+                if bottom[x] > top[x] && covered[x] {
+                    dark[x] = true;
+                }
+            }
+        });
 }
 
 /// A scale's estimate at a point.
@@ -1572,6 +1626,85 @@ mod tests {
     use super::*;
     use crate::grid::planes::{detect_planes, PlaneParams};
     use crate::sampling::Rng;
+
+    /// The windows' test cell by cell with summed-area tables (the first implementation).
+    fn dark_cells_reference(w: usize, h: usize, counts: &[f32], covered: &[bool]) -> Vec<bool> {
+        let mut dark = vec![false; w * h];
+        if counts.iter().all(|&c| c <= 0.0) {
+            return dark;
+        }
+        let n = SummedArea::new(w, h, |i| counts[i] as f64);
+        let a = SummedArea::new(w, h, |i| if covered[i] { 1.0 } else { 0.0 });
+        for b in DARK_WINDOWS.into_iter().filter(|&b| b <= w && b <= h) {
+            let (ww, wh) = (w - b + 1, h - b + 1);
+            // Empty windows, by their top-left cell.
+            let empty: Vec<f64> = (0..ww * wh)
+                .into_par_iter()
+                .map(|i| {
+                    let (x, y) = (i % ww, i / ww);
+                    let inside = a.sum(x, y, x + b, y + b);
+                    if inside <= 0.0 || n.sum(x, y, x + b, y + b) > 0.0 {
+                        return 0.0;
+                    }
+                    let (x0, y0) = (x.saturating_sub(b), y.saturating_sub(b));
+                    let (x1, y1) = ((x + 2 * b).min(w), (y + 2 * b).min(h));
+                    let ring = a.sum(x0, y0, x1, y1) - inside;
+                    let expected = if ring > 0.0 {
+                        n.sum(x0, y0, x1, y1) * inside / ring
+                    } else {
+                        0.0
+                    };
+                    if expected >= DARK_EXPECTED {
+                        1.0
+                    } else {
+                        0.0
+                    }
+                })
+                .collect();
+            if empty.iter().all(|&e| e == 0.0) {
+                continue;
+            }
+            // A cell is dark when a window containing it is.
+            let se = SummedArea::new(ww, wh, |i| empty[i]);
+            dark.par_iter_mut().enumerate().for_each(|(i, d)| {
+                let (x, y) = (i % w, i / w);
+                if *d || !covered[i] {
+                    return;
+                }
+                let (x0, y0) = ((x + 1).saturating_sub(b), (y + 1).saturating_sub(b));
+                let (x1, y1) = ((x + 1).min(ww), (y + 1).min(wh));
+                if x1 > x0 && y1 > y0 && se.sum(x0, y0, x1, y1) > 0.0 {
+                    *d = true;
+                }
+            });
+        }
+        dark
+    }
+
+    #[test]
+    fn dark_cells_match_the_cell_by_cell_windows() {
+        let mut rng = Rng::keyed(7, 0, 0);
+        for (w, h, lit) in [(37, 23, 0.6), (64, 64, 0.9), (90, 50, 0.3), (5, 70, 0.5), (1, 1, 1.0)] {
+            // Light in blobs with holes, a shadow, and some cells without surface.
+            let counts: Vec<f32> = (0..w * h)
+                .map(|i| {
+                    let (x, y) = ((i % w) as f32, (i / w) as f32);
+                    let shade = (x * 0.31).sin() * (y * 0.17).cos() > 0.2 || (x > 10.0 && x < 18.0);
+                    if !shade && rng.uniform() < lit {
+                        (rng.uniform() * 6.0).floor()
+                    } else {
+                        0.0
+                    }
+                })
+                .collect();
+            let covered: Vec<bool> = (0..w * h).map(|i| (i % w) + 2 < w || rng.uniform() < 0.5).collect();
+            let fast = dark_cells(w, h, &counts, &covered);
+            assert_eq!(fast, dark_cells_reference(w, h, &counts, &covered), "{w}×{h}");
+            if w > 30 {
+                assert!(fast.iter().any(|&d| d), "{w}×{h}: the test should find dark cells");
+            }
+        }
+    }
 
     fn square(size: f32) -> Vec<[Vec3; 3]> {
         let p = |x: f32, z: f32| Vec3::new(x, 0.0, z);
