@@ -596,7 +596,10 @@ impl<'a> PassLoop<'a> {
         let photon_seconds = photon_side(after) - photon_side(before);
         let first = budget.plan.size;
         let costs = corrected(&budget.costs, &first, photon_seconds, after.render - before.render);
-        let stage = Stage::After { gather: first.gather };
+        let stage = Stage::After {
+            gather: first.gather,
+            spp: first.spp,
+        };
         let plan = plan(&costs, left, budget.requested, stage);
         self.weight = (costs.pass_seconds(&plan.size) / costs.pass_seconds(&first)) as f32;
         self.settings = plan.size.apply(&self.settings);

@@ -172,10 +172,13 @@ pub enum Stage {
     /// keep the first pass's `gather` rays per sample as long as fewer photons can make room:
     /// the images average with weights by time, which suits fewer samples but not fewer gather
     /// rays per sample (each sample is then noisier than its weight says), while their photons
-    /// join grids that already hold the first pass's.
+    /// join grids that already hold the first pass's. For the same reason they keep
+    /// [`AFTER_SPP_FLOOR`] samples per pixel where the first pass had them.
     After {
         /// The first pass's gather rays per sample.
         gather: u32,
+        /// The first pass's samples per pixel.
+        spp: u32,
     },
 }
 
@@ -192,10 +195,26 @@ impl Stage {
     fn gather_floor(self) -> u32 {
         match self {
             Stage::First => 1,
-            Stage::After { gather } => gather.max(1),
+            Stage::After { gather, .. } => gather.max(1),
+        }
+    }
+
+    /// Fewest samples per pixel a pass keeps before its photons go below their floor.
+    fn spp_floor(self) -> u32 {
+        match self {
+            Stage::First => 1,
+            Stage::After { spp, .. } => spp.clamp(1, AFTER_SPP_FLOOR),
         }
     }
 }
+
+/// Samples per pixel a pass after the first keeps (where the first had as many) before its
+/// photons go below their floors. A pass of one sample per pixel had about three times the
+/// block error of one of two at equal photons and gather rays per pixel (ring_caustic CamWide:
+/// 3.7 against 1.3 %, also without final gathering: 5.0 against 1.7 %), and averaged by its
+/// time it made a render worse than its first pass alone (docs/time_budget.md, "One sample per
+/// pixel after the first pass").
+pub const AFTER_SPP_FLOOR: u32 = 2;
 
 /// How the passes of a time-budgeted render are sized, and why.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -455,8 +474,9 @@ impl Costs {
 }
 
 /// A pass of `requested`'s shape that takes `target` seconds, giving up first what lowers the
-/// error least: photons down to [`Costs::photon_floor_share`], then samples per pixel (down to 1),
-/// then gather rays (down to 1, or to the first pass's for the passes after it, [`Stage`]),
+/// error least: photons down to [`Costs::photon_floor_share`], then samples per pixel (down to 1,
+/// or to [`AFTER_SPP_FLOOR`] for the passes after the first), then gather rays (down to 1, or to
+/// the first pass's for the passes after it, [`Stage`]), then the samples a later pass kept,
 /// then photons down to [`MIN_PATHS`], then the gather rays a later pass kept. Where caustics carry
 /// much of the light ([`CAUSTICS_FIRST_SHARE`]) the caustic photons are given up only after
 /// the samples: a caustic's sharpness depends on them alone (passes average images, they do
@@ -485,7 +505,8 @@ pub fn shrink(costs: &Costs, target: f64, requested: PassSize, stage: Stage) -> 
         c_lo
     };
     let mut size = fit.refill(requested, g_lo, c_first);
-    while size.spp > 1 && fit.over(&size) {
+    let spp_floor = stage.spp_floor().min(requested.spp);
+    while size.spp > spp_floor && fit.over(&size) {
         size.spp -= 1;
         size = fit.refill(size, g_lo, c_first);
     }
@@ -494,6 +515,10 @@ pub fn shrink(costs: &Costs, target: f64, requested: PassSize, stage: Stage) -> 
     let gather_floor = stage.gather_floor().min(requested.gather);
     while size.gather > gather_floor && fit.over(&size) {
         size.gather -= 1;
+        size = fit.refill(size, g_lo, c_lo);
+    }
+    while size.spp > 1 && fit.over(&size) {
+        size.spp -= 1;
         size = fit.refill(size, g_lo, c_lo);
     }
     if fit.over(&size) {
@@ -956,7 +981,7 @@ mod tests {
         let left = c.pass_seconds(&room) * REPLANNED_PASSES;
         let first = plan(&c, left * PLANNED_PASSES / REPLANNED_PASSES, requested(), Stage::First).size;
         assert!(first.gather < 8, "{first:?}");
-        let later = plan(&c, left, requested(), Stage::After { gather: 8 });
+        let later = plan(&c, left, requested(), Stage::After { gather: 8, spp: 1 });
         assert_eq!((later.size.spp, later.size.gather), (1, 8), "{later:?}");
         assert!(later.size.photons < first.photons, "{later:?} vs {first:?}");
         assert!(
@@ -966,7 +991,12 @@ mod tests {
         // With no room for that either, gather rays go only when MIN_PATHS photons do not fit
         // beside one more of them (the photons then take what the dropped rays leave).
         let target = c.pass_seconds(&room) * 0.5 / REPLANNED_PASSES;
-        let tight = plan(&c, target * REPLANNED_PASSES, requested(), Stage::After { gather: 8 });
+        let tight = plan(
+            &c,
+            target * REPLANNED_PASSES,
+            requested(),
+            Stage::After { gather: 8, spp: 1 },
+        );
         assert!(tight.size.gather < 8, "{tight:?}");
         let one_more = PassSize {
             photons: MIN_PATHS * 2 / 3,
@@ -976,8 +1006,63 @@ mod tests {
         };
         assert!(c.pass_seconds(&one_more) > target, "{tight:?}");
         // A first pass with fewer gather rays than requested: later passes need not keep more.
-        let few = plan(&c, left, requested(), Stage::After { gather: 2 }).size;
+        let few = plan(&c, left, requested(), Stage::After { gather: 2, spp: 1 }).size;
         assert!(few.gather >= 2 && few.photons >= later.size.photons, "{few:?}");
+    }
+
+    #[test]
+    fn a_later_pass_keeps_two_samples_per_pixel_and_gives_up_caustic_photons_instead() {
+        // Caustics carry much light: a first pass keeps its caustic photons and gives up samples.
+        let c = costs();
+        let requested = PassSize {
+            caustic_photons: 12_000_000,
+            ..requested()
+        };
+        let room = PassSize {
+            photons: requested.photons / 16,
+            spp: 1,
+            ..requested
+        };
+        let left = c.pass_seconds(&room);
+        let first = plan(&c, left * PLANNED_PASSES, requested, Stage::First).size;
+        assert!(first.spp == 1 && first.caustic_photons >= 11_999_000, "{first:?}");
+        // A later pass after a first of 4 spp keeps 2 and fewer caustic photons, in the same time.
+        let later = plan(
+            &c,
+            left * REPLANNED_PASSES,
+            requested,
+            Stage::After { gather: 8, spp: 4 },
+        );
+        assert_eq!((later.size.spp, later.size.gather), (2, 8), "{later:?}");
+        assert!(later.size.caustic_photons < first.caustic_photons, "{later:?}");
+        assert!(later.predicted_pass_seconds <= left * 1.0001, "{later:?}");
+        // After a first pass of one sample per pixel, one is enough.
+        let after_one = plan(
+            &c,
+            left * REPLANNED_PASSES,
+            requested,
+            Stage::After { gather: 8, spp: 1 },
+        );
+        assert_eq!(after_one.size.spp, 1, "{after_one:?}");
+        // Without room for 2 spp beside the photons' floors, a later pass goes down to 1 before
+        // its photons go below them.
+        let floors = PassSize {
+            photons: requested.photons / 16,
+            caustic_photons: requested.caustic_photons / 16,
+            spp: 1,
+            ..requested
+        };
+        let tight = plan(
+            &c,
+            c.pass_seconds(&floors) * REPLANNED_PASSES,
+            requested,
+            Stage::After { gather: 8, spp: 4 },
+        );
+        assert_eq!(tight.size.spp, 1, "{tight:?}");
+        assert!(
+            tight.size.photons >= floors.photons && tight.size.caustic_photons >= floors.caustic_photons,
+            "{tight:?}"
+        );
     }
 
     #[test]
