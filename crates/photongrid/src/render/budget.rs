@@ -209,11 +209,11 @@ impl Stage {
 }
 
 /// Samples per pixel a pass after the first keeps (where the first had as many) before its
-/// photons go below their floors. A pass of one sample per pixel had about three times the
-/// block error of one of two at equal photons and gather rays per pixel (ring_caustic CamWide:
-/// 3.7 against 1.3 %, also without final gathering: 5.0 against 1.7 %), and averaged by its
-/// time it made a render worse than its first pass alone (docs/time_budget.md, "One sample per
-/// pixel after the first pass").
+/// photons go below their floors. One sample per pixel leaves bright edges (caustic cusps, a
+/// spot's border) unresolved within the pixel: such a pass had about three times the block
+/// error of one of two at equal photons and gather rays per pixel, and averaged by its time it
+/// made a render worse than its first pass alone (docs/time_budget.md, "One sample per pixel
+/// after the first pass").
 pub const AFTER_SPP_FLOOR: u32 = 2;
 
 /// How the passes of a time-budgeted render are sized, and why.
