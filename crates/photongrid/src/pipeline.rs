@@ -656,6 +656,14 @@ const PROBE_MIN_PATHS: usize = 10_000;
 const PROBE_CAMERA_BIAS: f64 = 1.3;
 /// The probe's camera pass renders this many times fewer pixels along each axis.
 const PROBE_SHRINK: u32 = 8;
+/// Timed runs of the probe's camera pass (after a warm-up), of which the median is taken.
+const PROBE_CAMERA_RUNS: usize = 3;
+
+/// The median of a few measurements.
+fn median_of<const N: usize>(mut v: [f64; N]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[N / 2]
+}
 
 /// What the time budget decided: the probe's measurements, the plan, and the deadline.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -811,7 +819,7 @@ fn probe_costs(
         rs.width = (rs.width / PROBE_SHRINK).max(4);
         rs.height = (rs.height / PROBE_SHRINK).max(3);
         samples += rs.width as u64 * rs.height as u64;
-        for gather in [0, probe.gather] {
+        let time = |gather: u32| {
             let t = Instant::now();
             let rs = RenderSettings { gather, ..rs.clone() };
             let pass = CameraPass {
@@ -822,8 +830,17 @@ fn probe_costs(
                 settings: &rs,
             };
             drop(crate::render::render(pass, &|_| {}));
-            *(if gather == 0 { &mut plain } else { &mut gathered }) += t.elapsed().as_secs_f64();
+            t.elapsed().as_secs_f64()
+        };
+        // A few milliseconds each: the first run pays for cold caches and idle threads, and
+        // single runs varied twofold; a warm-up, then the median of three.
+        time(0);
+        let mut runs: [[f64; 2]; PROBE_CAMERA_RUNS] = [[0.0; 2]; PROBE_CAMERA_RUNS];
+        for run in &mut runs {
+            *run = [time(0), time(probe.gather)];
         }
+        plain += median_of(runs.map(|r| r[0]));
+        gathered += median_of(runs.map(|r| r[1]));
     }
     let samples = samples.max(1) as f64;
     let gather_rays = samples * probe.gather.max(1) as f64;
