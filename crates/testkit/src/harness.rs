@@ -511,11 +511,11 @@ impl Report {
     }
 
     /// Check `row` against the bias measured when the thresholds were set: the bias may grow to
-    /// 1.5 × the measured one (plus `floor`, at least 3 σ across seeds) on the side it was
+    /// 1.5 × the measured one (plus `floor`, at least 3 standard errors) on the side it was
     /// measured, and shrink to 0 (minus the same floor): a worse estimate fails, a better one
     /// passes. `what` names the quantity in the message.
     pub fn check_measured(&mut self, row: &Row, measured: f64, floor: f64, what: &str) {
-        let floor = floor.max(3.0 * row.std);
+        let floor = floor.max(3.0 * row.standard_error());
         let (lo, hi) = if measured < 0.0 {
             (1.5 * measured - floor, floor)
         } else {

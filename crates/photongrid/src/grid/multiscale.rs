@@ -769,29 +769,33 @@ pub fn dark_cells(w: usize, h: usize, counts: &[f32], covered: &[bool]) -> Vec<b
     let empty_side = empty_squares(w, h, counts);
     for b in DARK_WINDOWS.into_iter().filter(|&b| b <= w && b <= h) {
         let (ww, wh) = (w - b + 1, h - b + 1);
-        // Dark windows, by their top-left cell.
-        let windows: Vec<bool> = (0..ww * wh)
-            .into_par_iter()
-            .with_min_len(1 << 12)
-            .map(|i| {
-                let (x, y) = (i % ww, i / ww);
-                if (empty_side[y * w + x] as usize) < b {
-                    return false;
+        // Dark windows, by their top-left cell, a row at a time; a run of `b` windows whose
+        // surroundings together hold no photon is skipped with one read.
+        let mut windows = vec![false; ww * wh];
+        windows.par_chunks_mut(ww).enumerate().for_each(|(y, row)| {
+            let (y0, y1) = (y.saturating_sub(b), (y + 2 * b).min(h));
+            for run in (0..ww).step_by(b) {
+                if n.sum(run.saturating_sub(b), y0, (run + 3 * b).min(w), y1) <= 0.0 {
+                    continue;
                 }
-                let (x0, y0) = (x.saturating_sub(b), y.saturating_sub(b));
-                let (x1, y1) = ((x + 2 * b).min(w), (y + 2 * b).min(h));
-                let around = n.sum(x0, y0, x1, y1);
-                if around <= 0.0 {
-                    return false;
+                for x in run..(run + b).min(ww) {
+                    if (empty_side[y * w + x] as usize) < b {
+                        continue;
+                    }
+                    let (x0, x1) = (x.saturating_sub(b), (x + 2 * b).min(w));
+                    let around = n.sum(x0, y0, x1, y1);
+                    if around <= 0.0 {
+                        continue;
+                    }
+                    let inside = a.sum(x, y, x + b, y + b);
+                    if inside <= 0.0 {
+                        continue;
+                    }
+                    let ring = a.sum(x0, y0, x1, y1) - inside;
+                    row[x] = ring > 0.0 && around * inside / ring >= DARK_EXPECTED;
                 }
-                let inside = a.sum(x, y, x + b, y + b);
-                if inside <= 0.0 {
-                    return false;
-                }
-                let ring = a.sum(x0, y0, x1, y1) - inside;
-                ring > 0.0 && around * inside / ring >= DARK_EXPECTED
-            })
-            .collect();
+            }
+        });
         if windows.iter().any(|&d| d) {
             mark_windows(&mut dark, w, h, &windows, b, covered);
         }
@@ -1684,7 +1688,15 @@ mod tests {
     #[test]
     fn dark_cells_match_the_cell_by_cell_windows() {
         let mut rng = Rng::keyed(7, 0, 0);
-        for (w, h, lit) in [(37, 23, 0.6), (64, 64, 0.9), (90, 50, 0.3), (5, 70, 0.5), (1, 1, 1.0)] {
+        for (w, h, lit) in [
+            (37, 23, 0.6),
+            (64, 64, 0.9),
+            (90, 50, 0.3),
+            (90, 48, 0.4),
+            (70, 4, 0.5),
+            (40, 1, 0.5),
+            (5, 70, 0.5),
+        ] {
             // Light in blobs with holes, a shadow, and some cells without surface.
             let counts: Vec<f32> = (0..w * h)
                 .map(|i| {
@@ -1700,7 +1712,7 @@ mod tests {
             let covered: Vec<bool> = (0..w * h).map(|i| (i % w) + 2 < w || rng.uniform() < 0.5).collect();
             let fast = dark_cells(w, h, &counts, &covered);
             assert_eq!(fast, dark_cells_reference(w, h, &counts, &covered), "{w}×{h}");
-            if w > 30 {
+            if w > 30 && h > 30 {
                 assert!(fast.iter().any(|&d| d), "{w}×{h}: the test should find dark cells");
             }
         }

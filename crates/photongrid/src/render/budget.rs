@@ -172,8 +172,9 @@ pub enum Stage {
     /// keep the first pass's `gather` rays per sample as long as fewer photons can make room:
     /// the images average with weights by time, which suits fewer samples but not fewer gather
     /// rays per sample (each sample is then noisier than its weight says), while their photons
-    /// join grids that already hold the first pass's. For the same reason they keep
-    /// [`AFTER_SPP_FLOOR`] samples per pixel where the first pass had them.
+    /// join grids that already hold the first pass's. They also keep [`AFTER_SPP_FLOOR`]
+    /// samples per pixel where the first pass had them, while their gather rays and photons
+    /// are cut down to their floors: one sample leaves bright edges unresolved.
     After {
         /// The first pass's gather rays per sample.
         gather: u32,
@@ -199,7 +200,8 @@ impl Stage {
         }
     }
 
-    /// Fewest samples per pixel a pass keeps before its photons go below their floor.
+    /// Fewest samples per pixel a pass keeps while its photons and gather rays are cut to their
+    /// floors (below them, samples go first).
     fn spp_floor(self) -> u32 {
         match self {
             Stage::First => 1,
@@ -208,8 +210,8 @@ impl Stage {
     }
 }
 
-/// Samples per pixel a pass after the first keeps (where the first had as many) before its
-/// photons go below their floors. One sample per pixel leaves bright edges (caustic cusps, a
+/// Samples per pixel a pass after the first keeps (where the first had as many) while its
+/// photons and gather rays are cut to their floors. One sample per pixel leaves bright edges (caustic cusps, a
 /// spot's border) unresolved within the pixel: such a pass had about three times the block
 /// error of one of two at equal photons and gather rays per pixel, and averaged by its time it
 /// made a render worse than its first pass alone (docs/time_budget.md, "One sample per pixel
@@ -302,6 +304,10 @@ pub fn fill(costs: &Costs, left: f64, size: PassSize, predicted: f64, measured: 
     // The images average with weights by time, which suits fewer samples but not fewer
     // gather rays per sample: those make each sample noisier than its weight says.
     if fill.gather < size.gather {
+        return None;
+    }
+    // Nor a pass of one sample per pixel after passes of two or more ([`AFTER_SPP_FLOOR`]).
+    if fill.spp < size.spp.min(AFTER_SPP_FLOOR) {
         return None;
     }
     // Photons and samples have floors; a pass cut at the deadline is dropped, so allow some.
@@ -479,8 +485,8 @@ impl Costs {
 /// the first pass's for the passes after it, [`Stage`]), then the samples a later pass kept,
 /// then photons down to [`MIN_PATHS`], then the gather rays a later pass kept. Where caustics carry
 /// much of the light ([`CAUSTICS_FIRST_SHARE`]) the caustic photons are given up only after
-/// the samples: a caustic's sharpness depends on them alone (passes average images, they do
-/// not narrow the kernels), and they are cheap (most paths store one photon and need no
+/// the samples (for a later pass, the samples above its floor): a caustic's sharpness depends
+/// on them alone (passes average images, they do not narrow the kernels), and they are cheap (most paths store one photon and need no
 /// irradiance); time freed then goes to caustic photons first. Elsewhere both kinds of photon
 /// shrink alike: the multiscale estimate shows global photons' light directly, and caustic
 /// photons bought at their expense darkened a scene whose caustics carry 0.4 % of the light.
@@ -1012,7 +1018,8 @@ mod tests {
 
     #[test]
     fn a_later_pass_keeps_two_samples_per_pixel_and_gives_up_caustic_photons_instead() {
-        // Caustics carry much light: a first pass keeps its caustic photons and gives up samples.
+        // Caustics carry much light: a pass planned as a first one keeps its caustic photons and
+        // gives up samples, down to one per pixel.
         let c = costs();
         let requested = PassSize {
             caustic_photons: 12_000_000,
@@ -1024,9 +1031,12 @@ mod tests {
             ..requested
         };
         let left = c.pass_seconds(&room);
-        let first = plan(&c, left * PLANNED_PASSES, requested, Stage::First).size;
-        assert!(first.spp == 1 && first.caustic_photons >= 11_999_000, "{first:?}");
-        // A later pass after a first of 4 spp keeps 2 and fewer caustic photons, in the same time.
+        let as_first = plan(&c, left * PLANNED_PASSES, requested, Stage::First).size;
+        assert!(
+            as_first.spp == 1 && as_first.caustic_photons >= 11_999_000,
+            "{as_first:?}"
+        );
+        // The same time after a first pass of 4 spp: 2 kept, caustic photons given up instead.
         let later = plan(
             &c,
             left * REPLANNED_PASSES,
@@ -1034,7 +1044,7 @@ mod tests {
             Stage::After { gather: 8, spp: 4 },
         );
         assert_eq!((later.size.spp, later.size.gather), (2, 8), "{later:?}");
-        assert!(later.size.caustic_photons < first.caustic_photons, "{later:?}");
+        assert!(later.size.caustic_photons < requested.caustic_photons, "{later:?}");
         assert!(later.predicted_pass_seconds <= left * 1.0001, "{later:?}");
         // After a first pass of one sample per pixel, one is enough.
         let after_one = plan(
@@ -1045,7 +1055,7 @@ mod tests {
         );
         assert_eq!(after_one.size.spp, 1, "{after_one:?}");
         // Without room for 2 spp beside the photons' floors, a later pass goes down to 1 before
-        // its photons go below them.
+        // its photons go below them (the order of the last steps).
         let floors = PassSize {
             photons: requested.photons / 16,
             caustic_photons: requested.caustic_photons / 16,
@@ -1081,6 +1091,7 @@ mod tests {
         for left in [0.3, 0.5, 0.8, 1.2] {
             if let Some(f) = fill(&c, left * measured, size, predicted, measured) {
                 assert_eq!(f.gather, size.gather, "{left}: {f:?}");
+                assert!(f.spp >= size.spp.min(AFTER_SPP_FLOOR), "{left}: {f:?}");
                 assert!(f.photons as f64 >= FILL_MIN_PHOTON_SHARE * size.photons as f64, "{f:?}");
                 assert!(f.caustic_photons as f64 >= FILL_MIN_PHOTON_SHARE * size.caustic_photons as f64);
             }
