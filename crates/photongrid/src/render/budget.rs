@@ -306,10 +306,6 @@ pub fn fill(costs: &Costs, left: f64, size: PassSize, predicted: f64, measured: 
     if fill.gather < size.gather {
         return None;
     }
-    // Nor a pass of one sample per pixel after passes of two or more ([`AFTER_SPP_FLOOR`]).
-    if fill.spp < size.spp.min(AFTER_SPP_FLOOR) {
-        return None;
-    }
     // Photons and samples have floors; a pass cut at the deadline is dropped, so allow some.
     (corrected.pass_seconds(&fill) <= left).then_some(fill)
 }
@@ -1091,7 +1087,6 @@ mod tests {
         for left in [0.3, 0.5, 0.8, 1.2] {
             if let Some(f) = fill(&c, left * measured, size, predicted, measured) {
                 assert_eq!(f.gather, size.gather, "{left}: {f:?}");
-                assert!(f.spp >= size.spp.min(AFTER_SPP_FLOOR), "{left}: {f:?}");
                 assert!(f.photons as f64 >= FILL_MIN_PHOTON_SHARE * size.photons as f64, "{f:?}");
                 assert!(f.caustic_photons as f64 >= FILL_MIN_PHOTON_SHARE * size.caustic_photons as f64);
             }
