@@ -764,8 +764,8 @@ pub fn dark_cells(w: usize, h: usize, counts: &[f32], covered: &[bool]) -> Vec<b
     let n = SummedArea::new(w, h, |i| counts[i] as f64);
     let a = SummedArea::new(w, h, |i| if covered[i] { 1.0 } else { 0.0 });
     // Most windows hold photons, and most empty ones lie in the dark far from any light: the
-    // side of the largest empty square at each cell skips the first, the ring's photons the
-    // second, before the areas are read.
+    // side of the largest empty square at each cell skips the first, the photons around them
+    // (one read per run of windows, then per window) the second, before the areas are read.
     let empty_side = empty_squares(w, h, counts);
     for b in DARK_WINDOWS.into_iter().filter(|&b| b <= w && b <= h) {
         let (ww, wh) = (w - b + 1, h - b + 1);

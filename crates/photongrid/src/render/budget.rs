@@ -211,11 +211,11 @@ impl Stage {
 }
 
 /// Samples per pixel a pass after the first keeps (where the first had as many) while its
-/// photons and gather rays are cut to their floors. One sample per pixel leaves bright edges (caustic cusps, a
-/// spot's border) unresolved within the pixel: such a pass had about three times the block
-/// error of one of two at equal photons and gather rays per pixel, and averaged by its time it
-/// made a render worse than its first pass alone (docs/time_budget.md, "One sample per pixel
-/// after the first pass").
+/// photons and gather rays are cut to their floors. One sample per pixel leaves bright edges
+/// (caustic cusps, a spot's border) unresolved within the pixel: such a pass had about three
+/// times the block error of one of two at equal photons and gather rays per pixel, and averaged
+/// by its time it made a render worse than its first pass alone (docs/time_budget.md, "One
+/// sample per pixel after the first pass").
 pub const AFTER_SPP_FLOOR: u32 = 2;
 
 /// How the passes of a time-budgeted render are sized, and why.
@@ -479,13 +479,14 @@ impl Costs {
 /// error least: photons down to [`Costs::photon_floor_share`], then samples per pixel (down to 1,
 /// or to [`AFTER_SPP_FLOOR`] for the passes after the first), then gather rays (down to 1, or to
 /// the first pass's for the passes after it, [`Stage`]), then the samples a later pass kept,
-/// then photons down to [`MIN_PATHS`], then the gather rays a later pass kept. Where caustics carry
-/// much of the light ([`CAUSTICS_FIRST_SHARE`]) the caustic photons are given up only after
+/// then photons down to [`MIN_PATHS`], then the gather rays a later pass kept. Where caustics
+/// carry much of the light ([`CAUSTICS_FIRST_SHARE`]) the caustic photons are given up only after
 /// the samples (for a later pass, the samples above its floor): a caustic's sharpness depends
-/// on them alone (passes average images, they do not narrow the kernels), and they are cheap (most paths store one photon and need no
-/// irradiance); time freed then goes to caustic photons first. Elsewhere both kinds of photon
-/// shrink alike: the multiscale estimate shows global photons' light directly, and caustic
-/// photons bought at their expense darkened a scene whose caustics carry 0.4 % of the light.
+/// on them alone (passes average images, they do not narrow the kernels), and they are cheap
+/// (most paths store one photon and need no irradiance); time freed then goes to caustic
+/// photons first. Elsewhere both kinds of photon shrink alike: the multiscale estimate shows
+/// global photons' light directly, and caustic photons bought at their expense darkened a scene
+/// whose caustics carry 0.4 % of the light.
 pub fn shrink(costs: &Costs, target: f64, requested: PassSize, stage: Stage) -> PassSize {
     let paths = requested.paths().max(1) as f64;
     let floor =
