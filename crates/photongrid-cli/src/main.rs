@@ -1108,7 +1108,8 @@ fn info_grids(scene: &photongrid::scene::Scene) {
          (about --cell-photons photons per cell where that light is densest, 8 to 2048 cells along a side, within \
          --grid-cells) and a pyramid of coarser kernels, from which each point takes the widest that agrees with \
          every finer one; the sizes and the kernels chosen are known after the first pass: --stats (grids.choice) \
-         and --dump-grids. Surfaces on no plane use nested kNN discs of the photon map.",
+         and --dump-grids. Surfaces on no plane use nested kNN discs of the photon map, each divided by the \
+         receiving surface inside it where the map holds global light (no final gathering).",
         receivers.planes.len()
     );
     let grids = photongrid::grid::Grids::build(scene, &[], &[], &(&Settings::default()).into());

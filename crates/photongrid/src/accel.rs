@@ -222,6 +222,18 @@ impl Accel {
         !self.bvh.ray_traverse_miss(ray, |r, id| self.test(r, id))
     }
 
+    /// Calls `f` with the scene index of every triangle in a BVH leaf whose box overlaps the
+    /// box `lo`–`hi`: a superset of the triangles that overlap it, each once.
+    pub fn for_each_near(&self, lo: Vec3, hi: Vec3, mut f: impl FnMut(u32)) {
+        use glam::UVec2;
+        let aabb = obvhs::aabb::Aabb::new(Vec3A::from(lo * self.scale), Vec3A::from(hi * self.scale));
+        let mut state = self.bvh.new_traversal(Vec3A::ONE);
+        let mut node;
+        obvhs::traverse!(self.bvh, node, state, node.intersect_aabb(&aabb, state.oct_inv4), {
+            f(self.original[state.primitive_id as usize]);
+        });
+    }
+
     /// The ray in the BVH's scaled space (distances scale with it; the direction is kept).
     fn ray(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Ray {
         Ray::new(
@@ -252,6 +264,32 @@ mod tests {
             n: [n; 3],
             uv: [Vec2::ZERO; 3],
             material: 0,
+        }
+    }
+
+    /// The box query returns every triangle whose bounds overlap the box (and each once).
+    #[test]
+    fn for_each_near_finds_every_overlapping_triangle() {
+        let mut rng = crate::sampling::Rng::keyed(21, 0, 0);
+        let mut p = || Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 4.0;
+        let triangles: Vec<Triangle> = (0..2000)
+            .map(|_| {
+                let a = p();
+                let d = Vec3::new(0.1, 0.0, 0.05);
+                tri(a, a + d, a + Vec3::new(0.0, 0.08, 0.02))
+            })
+            .collect();
+        let accel = Accel::build(&triangles);
+        for i in 0..50 {
+            let c = Vec3::splat(0.08 * i as f32);
+            let (lo, hi) = (c - 0.3, c + 0.3);
+            let mut seen = vec![0u32; triangles.len()];
+            accel.for_each_near(lo, hi, |t| seen[t as usize] += 1);
+            for (t, n) in triangles.iter().zip(&seen) {
+                let (tlo, thi) = (t.p[0].min(t.p[1]).min(t.p[2]), t.p[0].max(t.p[1]).max(t.p[2]));
+                let overlaps = tlo.cmple(hi).all() && thi.cmpge(lo).all();
+                assert!(*n <= 1 && (!overlaps || *n == 1), "{t:?} overlaps {overlaps}, seen {n}");
+            }
         }
     }
 

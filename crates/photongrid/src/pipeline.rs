@@ -5,7 +5,7 @@
 //! render through [`render`], so what is measured is what users run.
 
 use crate::accel::Accel;
-use crate::estimate::{Accumulation, Estimator, Gammas, IrradianceCache, PassGrids, PhotonMap};
+use crate::estimate::{Accumulation, Estimator, Gammas, IrradianceCache, PassGrids, PhotonMap, Surfaces};
 use crate::film::Film;
 use crate::grid::multiscale::{Emitted, MultiscaleGrids, MultiscaleParams, Probes, DIRECT, INDIRECT};
 use crate::grid::PlaneGrids;
@@ -487,6 +487,8 @@ struct PassLoop<'a> {
     accs: Vec<Accumulator>,
     render_seconds: Vec<f64>,
     grids: GridState,
+    /// The surfaces under the estimate's discs (their measurements kept over passes).
+    surfaces: Surfaces<'a>,
     /// Final-gather rays per pixel over the passes so far.
     gather_rays: f32,
 }
@@ -518,6 +520,7 @@ impl<'a> PassLoop<'a> {
             accs,
             render_seconds: vec![0.0; cameras.len()],
             grids: GridState::default(),
+            surfaces: Surfaces::new(scene, accel),
             gather_rays: 0.0,
         }
     }
@@ -532,7 +535,7 @@ impl<'a> PassLoop<'a> {
         report.memory.photon_map_bytes = report.memory.photon_map_bytes.max(photons.map.memory_bytes());
         self.gather_rays += settings.spp as f32 * settings.effective_gather() as f32;
         let input = PhotonData {
-            estimator: Estimator::for_pass(settings, done, &photons.map, self.grids.view())
+            estimator: Estimator::for_pass(settings, done, &photons.map, self.grids.view(), &self.surfaces)
                 .with_gather_rays(self.gather_rays),
             irradiance: photons.irradiance.as_ref(),
         };
@@ -807,8 +810,9 @@ fn probe_costs(
         progress,
         &mut scratch,
     );
+    let surfaces = Surfaces::new(scene, accel);
     let input = PhotonData {
-        estimator: Estimator::for_pass(&probe_settings, 0, &photons.map, grids.view())
+        estimator: Estimator::for_pass(&probe_settings, 0, &photons.map, grids.view(), &surfaces)
             .with_gather_rays(probe_gather_rays(probe, requested)),
         irradiance: photons.irradiance.as_ref(),
     };
@@ -1269,8 +1273,9 @@ pub fn render_camera(
 ) -> Film {
     let (w, h) = resolution(camera, settings);
     let mut acc = Accumulator::new(settings.method.needs().accumulation, w, h, settings.spp);
+    let surfaces = Surfaces::new(scene, &prepared.accel);
     let input = PhotonData {
-        estimator: Estimator::for_pass(settings, 0, &prepared.map, prepared.grids.view()),
+        estimator: Estimator::for_pass(settings, 0, &prepared.map, prepared.grids.view(), &surfaces),
         irradiance: prepared.irradiance.as_ref(),
     };
     let job = PassJob {

@@ -14,9 +14,11 @@ pub mod irradiance;
 pub mod multiscale;
 pub mod photon_map;
 pub mod sppm;
+pub mod support;
 
 pub use irradiance::IrradianceCache;
 pub use photon_map::{Gather, PhotonMap, NORMAL_AGREEMENT};
+pub use support::Surfaces;
 
 use crate::grid::multiscale::MultiscaleGrids;
 use crate::grid::{GridSample, Grids};
@@ -158,6 +160,8 @@ pub enum Estimator<'a> {
         /// Final-gather rays per pixel over the passes so far, this one included (camera
         /// samples × gather rays; [`Estimator::with_gather_rays`]).
         gather_rays: f32,
+        /// The surfaces, for the area each disc covers off the planes.
+        surfaces: &'a Surfaces<'a>,
     },
     /// SPPM: each camera sample keeps its own radius ([`sppm::SppmPixel`]); a query gives the
     /// kNN radius that starts it.
@@ -176,8 +180,15 @@ pub enum Estimator<'a> {
 pub const OFF_PLANE_WIDENING: usize = 4;
 
 impl<'a> Estimator<'a> {
-    /// The estimator of `settings.method` for pass `pass` (0-based) over `map` and the grids.
-    pub fn for_pass(settings: &Settings, pass: u32, map: &'a PhotonMap, grids: PassGrids<'a>) -> Self {
+    /// The estimator of `settings.method` for pass `pass` (0-based) over `map`, the grids and
+    /// the scene's `surfaces`.
+    pub fn for_pass(
+        settings: &Settings,
+        pass: u32,
+        map: &'a PhotonMap,
+        grids: PassGrids<'a>,
+        surfaces: &'a Surfaces<'a>,
+    ) -> Self {
         let k = settings.neighbours;
         match settings.method {
             Method::Knn => Estimator::Knn { map, k },
@@ -190,6 +201,7 @@ impl<'a> Estimator<'a> {
                 direct: settings.direct == crate::settings::DirectLighting::Photons,
                 gathering: settings.effective_gather() > 0,
                 gather_rays: settings.spp as f32 * settings.effective_gather() as f32,
+                surfaces,
             },
             Method::Adaptive => {
                 let (n_all, k) = progressive_neighbours(k, pass);
@@ -268,6 +280,7 @@ impl<'a> Estimator<'a> {
                 direct,
                 gathering,
                 gather_rays,
+                surfaces,
             } => {
                 // With final gathering the map holds caustics only: its photons within a disc
                 // resolve a caustic finer than the grids' finest texel.
@@ -279,9 +292,20 @@ impl<'a> Estimator<'a> {
                     Some(g) => g,
                     None => {
                         let k_max = if gathering { k } else { OFF_PLANE_WIDENING * k };
+                        // The surface under each disc where the map holds global light; a
+                        // caustic map's discs (final gathering on) keep πr²: there the areas
+                        // cost camera time and moved no figure (docs/multiscale.md, "Discs
+                        // that cross an edge off the planes").
+                        let area = |r2: &[f32], a: &mut [f32]| {
+                            if gathering {
+                                support::flat_disc_areas(r2, a)
+                            } else {
+                                surfaces.kernel_areas(q.position, q.facing_normal, q.triangle, r2, a)
+                            }
+                        };
                         Gather {
                             needs_gathering: gathering,
-                            ..map.adaptive_knn(q.position, q.facing_normal, (k_max, q.footprint), buf)
+                            ..map.adaptive_knn(q.position, q.facing_normal, (k_max, q.footprint), &area, buf)
                         }
                     }
                 }

@@ -46,7 +46,8 @@ fn cell_size_for(photons: &[Photon], k: usize, surface_area: f32) -> f32 {
 pub struct Gather {
     /// Σ Φ of the photons used (already scaled for the k-th-photon bias, see [`PhotonMap::knn`]).
     pub flux: Rgb,
-    /// Squared radius of the gather disc.
+    /// Squared radius of the gather disc; where the estimate knows the surface the disc covers
+    /// ([`PhotonMap::adaptive_knn`]), the squared radius of a disc of that area.
     pub r2: f32,
     /// Photons used.
     pub count: usize,
@@ -156,29 +157,45 @@ impl PhotonMap {
     }
 
     /// The widest of nested discs of the `k_max` nearest photons (holding
-    /// [`ADAPTIVE_MIN_NEIGHBOURS`], twice as many, … photons and all `k_max`) whose estimate agrees with every narrower one's ([`lepski_agrees`]).
-    /// Where the light is flat the disc grows to `k_max` photons (less noise than a fixed k);
-    /// across a caustic's edge or a filament it stops at a few (sharp). For surfaces no plane
-    /// grid covers. A disc narrower than `min_radius` (a camera pixel's footprint) is replaced
-    /// by the disc of that radius: fixed-radius discs spread each photon's power over exactly
-    /// its disc, where kNN discs next to a line of light finer than a pixel count it again and
-    /// again (up to twice the line's power in the pixel holding it).
+    /// [`ADAPTIVE_MIN_NEIGHBOURS`], twice as many, … photons and all `k_max`) whose estimate
+    /// agrees with every narrower one's ([`lepski_agrees`]). Where the light is flat the disc
+    /// grows to `k_max` photons (less noise than a fixed k); across a caustic's edge or a
+    /// filament it stops at a few (sharp). For surfaces no plane grid covers. A disc narrower
+    /// than `min_radius` (a camera pixel's footprint) is replaced by the disc of that radius:
+    /// fixed-radius discs spread each photon's power over exactly its disc, where kNN discs
+    /// next to a line of light finer than a pixel count it again and again (up to twice the
+    /// line's power in the pixel holding it).
+    ///
+    /// `area` gives the surface each disc covers (for squared radii, their areas:
+    /// [`super::support::Surfaces::kernel_areas`], or [`super::support::flat_disc_areas`]);
+    /// estimates divide by it, and the result's `r2` is that area over π.
     pub fn adaptive_knn(
         &self,
         x: Vec3,
         normal: Vec3,
         (k_max, min_radius): (usize, f32),
+        area: &dyn Fn(&[f32], &mut [f32]),
         buf: &mut KnnBuffer,
     ) -> Gather {
-        let g = self.adaptive_knn_discs(x, normal, k_max, buf);
+        let (mut g, mut a) = self.adaptive_knn_discs(x, normal, k_max, area, buf);
         if g.r2 < min_radius * min_radius {
-            self.within(x, normal, min_radius)
-        } else {
-            g
+            g = self.within(x, normal, min_radius);
+            let mut one = [0.0];
+            area(&[g.r2], &mut one);
+            a = one[0];
         }
+        Gather { r2: a / PI, ..g }
     }
 
-    fn adaptive_knn_discs(&self, x: Vec3, normal: Vec3, k_max: usize, buf: &mut KnnBuffer) -> Gather {
+    /// The chosen disc (its real radius) and its area on the surface.
+    fn adaptive_knn_discs(
+        &self,
+        x: Vec3,
+        normal: Vec3,
+        k_max: usize,
+        area: &dyn Fn(&[f32], &mut [f32]),
+        buf: &mut KnnBuffer,
+    ) -> (Gather, f32) {
         let r2_search = self
             .grid
             .knn(x, k_max, self.max_radius, |p| self.accepts(p, normal), buf);
@@ -186,12 +203,18 @@ impl PhotonMap {
         let found = buf.sorted();
         let full = found.len() >= k_max;
         if found.len() <= ADAPTIVE_MIN_NEIGHBOURS {
-            return Gather {
+            // No photon, no light: the area would not change the estimate.
+            let mut one = [PI * r2_search];
+            if !found.is_empty() {
+                area(&[r2_search], &mut one);
+            }
+            let g = Gather {
                 flux: found.iter().map(|&(i, _)| items[i as usize].power()).sum(),
                 r2: r2_search,
                 count: found.len(),
                 needs_gathering: false,
             };
+            return (g, one[0]);
         }
         let mut flux = Rgb::ZERO;
         // (flux, squared radius, photons) of each disc, narrowest first.
@@ -214,25 +237,28 @@ impl PhotonMap {
                 next *= 2;
             }
         }
-        let e = |d: &(Rgb, f32, usize)| crate::luminance(d.0) / (PI * d.1.max(1e-30));
+        let (mut r2, mut areas) = ([0.0f32; 24], [0.0f32; 24]);
+        for (r2, d) in r2.iter_mut().zip(&discs[..m]) {
+            *r2 = d.1;
+        }
+        area(&r2[..m], &mut areas[..m]);
+        let e = |j: usize| crate::luminance(discs[j].0) / areas[j].max(1e-30);
         let mut best = 0;
         for j in 1..m {
-            let (ej, nj) = (e(&discs[j]), discs[j].2);
-            if !discs[..j]
-                .iter()
-                .all(|f| lepski_agrees(e(f), f.2, ej, nj, LEPSKI_GAMMA))
-            {
+            let (ej, nj) = (e(j), discs[j].2);
+            if !(0..j).all(|f| lepski_agrees(e(f), discs[f].2, ej, nj, LEPSKI_GAMMA)) {
                 break;
             }
             best = j;
         }
         let (flux, r2, count) = discs[best];
-        Gather {
+        let g = Gather {
             flux,
             r2,
             count,
             needs_gathering: false,
-        }
+        };
+        (g, areas[best])
     }
 
     /// The photons of the last [`PhotonMap::knn`] result in `buf` that lie within `r` (≤ the
@@ -271,6 +297,7 @@ impl PhotonMap {
 
 #[cfg(test)]
 mod tests {
+    use super::super::support::flat_disc_areas;
     use super::*;
     use crate::photon::PhotonKind;
     use crate::sampling::Rng;
@@ -314,7 +341,7 @@ mod tests {
         let (mut se_fixed, mut se_adaptive, mut n, mut widest) = (0.0f32, 0.0f32, 0, 0);
         for i in 0..40 {
             let x = Vec3::new(-0.5 + 0.025 * i as f32, 0.0, 0.1 * (i % 7) as f32 - 0.3);
-            let a = m.adaptive_knn(x, Vec3::Y, (400, 0.0), &mut buf);
+            let a = m.adaptive_knn(x, Vec3::Y, (400, 0.0), &flat_disc_areas, &mut buf);
             widest += (a.count == 400) as usize;
             let k = m.knn(x, Vec3::Y, 100, &mut buf);
             se_fixed += (irradiance(&k) - truth).powi(2);
@@ -352,7 +379,7 @@ mod tests {
         let (mut fixed, mut adaptive, mut n) = (0.0f32, 0.0f32, 0);
         for i in 0..60 {
             let x = Vec3::new(0.0, 0.0, -0.6 + 0.02 * i as f32);
-            adaptive += irradiance(&m.adaptive_knn(x, Vec3::Y, (400, 0.0), &mut buf));
+            adaptive += irradiance(&m.adaptive_knn(x, Vec3::Y, (400, 0.0), &flat_disc_areas, &mut buf));
             fixed += irradiance(&m.knn(x, Vec3::Y, 100, &mut buf));
             n += 1;
         }
@@ -371,10 +398,10 @@ mod tests {
         // Five photons in all.
         let (m, _) = map(1.25, |_| true);
         let mut buf = KnnBuffer::new();
-        let a = m.adaptive_knn(Vec3::ZERO, Vec3::Y, (400, 0.0), &mut buf);
+        let a = m.adaptive_knn(Vec3::ZERO, Vec3::Y, (400, 0.0), &flat_disc_areas, &mut buf);
         let k = m.knn(Vec3::ZERO, Vec3::Y, 400, &mut buf);
         assert!(
-            a.count <= ADAPTIVE_MIN_NEIGHBOURS && a.count == k.count && a.r2 == k.r2,
+            a.count <= ADAPTIVE_MIN_NEIGHBOURS && a.count == k.count && (a.r2 / k.r2 - 1.0).abs() < 1e-6,
             "{a:?} {k:?}"
         );
     }
@@ -396,7 +423,13 @@ mod tests {
             let dx = 2.5e-4;
             (-200..=200)
                 .map(|i| {
-                    irradiance(&m.adaptive_knn(Vec3::new(i as f32 * dx, 0.0, 0.0), Vec3::Y, (100, footprint), buf)) * dx
+                    irradiance(&m.adaptive_knn(
+                        Vec3::new(i as f32 * dx, 0.0, 0.0),
+                        Vec3::Y,
+                        (100, footprint),
+                        &flat_disc_areas,
+                        buf,
+                    )) * dx
                 })
                 .sum()
         };
