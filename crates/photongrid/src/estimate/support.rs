@@ -27,8 +27,6 @@ pub struct Surfaces<'a> {
     receives: Vec<bool>,
     /// Built at the first query (renders with final gathering never ask).
     tables: OnceLock<Tables>,
-    /// Largest radius a clearance is measured to.
-    reach: f32,
 }
 
 /// Per triangle: what decides most triangles without clipping, and per side (front, back),
@@ -44,18 +42,17 @@ impl<'a> Surfaces<'a> {
     /// The receiving surfaces of `scene`, found through its BVH.
     pub fn new(scene: &'a Scene, accel: &'a Accel) -> Self {
         let receives: Vec<bool> = scene.materials.iter().map(|m| m.receives_photons()).collect();
-        Surfaces::of(&scene.triangles, &receives, accel, scene.bounds.diagonal())
+        Surfaces::of(&scene.triangles, &receives, accel)
     }
 
     /// `triangles` (indexed by `accel`), of which those whose material `m` has `receives[m]`
-    /// hold photons, within a scene of diagonal `diagonal`.
-    pub fn of(triangles: &'a [Triangle], receives: &[bool], accel: &'a Accel, diagonal: f32) -> Self {
+    /// hold photons.
+    pub fn of(triangles: &'a [Triangle], receives: &[bool], accel: &'a Accel) -> Self {
         Surfaces {
             accel,
             triangles,
             receives: receives.to_vec(),
             tables: OnceLock::new(),
-            reach: diagonal,
         }
     }
 
@@ -86,7 +83,8 @@ impl<'a> Surfaces<'a> {
         let front = own.cross().dot(facing) >= 0.0;
         let reach = r2.iter().fold(0.0f32, |a, &b| a.max(b)).sqrt();
         let centroid = (own.p[0] + own.p[1] + own.p[2]) / 3.0;
-        if reach + (x - centroid).length() <= self.clearance(triangle, front) {
+        let d = (x - centroid).length();
+        if reach + d <= self.clearance(triangle, front, 2.0 * (reach + d)) {
             return flat_disc_areas(r2, areas);
         }
         self.surface_in_spheres(x, facing, front, r2, areas);
@@ -99,8 +97,10 @@ impl<'a> Surfaces<'a> {
     }
 
     /// The radius about triangle `t`'s centroid within which the surface on its side (`front`)
-    /// is a whole disc, measured by doubling radii from the triangle's size on.
-    fn clearance(&self, t: u32, front: bool) -> f32 {
+    /// is a whole disc, measured by doubling radii from the triangle's size on, up to `cap`
+    /// at the first query (later queries reaching farther measure their triangles): a gently
+    /// curved mesh of a million triangles would otherwise be searched whole.
+    fn clearance(&self, t: u32, front: bool, cap: f32) -> f32 {
         let slot = &self.tables().clearance[t as usize][usize::from(!front)];
         let known = slot.load(Ordering::Relaxed);
         if known != UNKNOWN {
@@ -112,7 +112,7 @@ impl<'a> Surfaces<'a> {
         let mut r = 2.0 * tri.p.iter().fold(0.0f32, |m, p| m.max((*p - c).length()));
         let mut whole = 0.0;
         let mut area = [0.0];
-        while r > 0.0 && r <= self.reach {
+        while r > 0.0 && r <= cap {
             self.surface_in_spheres(c, n, front, &[r * r], &mut area);
             if (area[0] / (PI * r * r) - 1.0).abs() > WHOLE_DISC_TOLERANCE {
                 break;
@@ -369,7 +369,7 @@ mod tests {
         triangles.extend(quad(o, w, d, 0)); // bottom (−y)
         triangles.extend(quad(o + d + Vec3::Z * 0.01, w, h, 1)); // a mirror just in front
         let accel = Accel::build(&triangles);
-        let s = Surfaces::of(&triangles, &[true, false], &accel, 2.0);
+        let s = Surfaces::of(&triangles, &[true, false], &accel);
         let r2 = [0.01f32 * 0.01, 0.1 * 0.1];
         let mut areas = [0.0; 2];
         // Mid-front, 2 cm up: a 1 cm disc lies within the strip, a 10 cm one keeps its
@@ -406,7 +406,7 @@ mod tests {
             }
         }
         let accel = Accel::build(&triangles);
-        let s = Surfaces::of(&triangles, &[true], &accel, 2.0);
+        let s = Surfaces::of(&triangles, &[true], &accel);
         let mut rng = Rng::keyed(9, 0, 0);
         let r2 = [0.01f32 * 0.01, 0.05 * 0.05, 0.1 * 0.1];
         let (mut fast, mut exact) = ([0.0; 3], [0.0; 3]);
@@ -442,7 +442,7 @@ mod tests {
         let triangles = quad(Vec3::new(-1.0, 0.0, -0.02), Vec3::X * len, Vec3::Z * width, 0)
             .map(|t| tri(t.p[0], t.p[2], t.p[1], 0));
         let accel = Accel::build(&triangles);
-        let s = Surfaces::of(&triangles, &[true], &accel, 2.0);
+        let s = Surfaces::of(&triangles, &[true], &accel);
         let mut rng = Rng::keyed(13, 0, 0);
         let n = (len * width * per_m2) as usize;
         let photons: Vec<Photon> = (0..n)
@@ -489,7 +489,7 @@ mod tests {
             .map(|[a, b, c]| tri(a, b, c, 0))
             .collect();
         let accel = Accel::build(&triangles);
-        let s = Surfaces::of(&triangles, &[true], &accel, 2.0);
+        let s = Surfaces::of(&triangles, &[true], &accel);
         let r2 = [0.02f32 * 0.02, 0.1 * 0.1, 0.2 * 0.2];
         let mut areas = [0.0; 3];
         for (i, t) in triangles.iter().enumerate().step_by(97) {
