@@ -15,7 +15,8 @@ pub struct Aov {
     pub depth: f32,
     /// Photon density at the first diffuse hit [photons/m²].
     pub density: f32,
-    /// Radius used by the photon estimate at the first diffuse hit [m].
+    /// Radius used by the photon estimate at the first diffuse hit [m]: of the disc with the
+    /// kernel's area on the surface where the estimate knows it (plane edges, off-plane edges).
     pub radius: f32,
 }
 

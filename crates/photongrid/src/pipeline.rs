@@ -509,6 +509,7 @@ impl<'a> PassLoop<'a> {
                 Accumulator::new(accumulation, w, h, settings.spp)
             })
             .collect();
+        let surfaces = Surfaces::new(scene, accel, &settings);
         PassLoop {
             scene,
             accel,
@@ -520,7 +521,7 @@ impl<'a> PassLoop<'a> {
             accs,
             render_seconds: vec![0.0; cameras.len()],
             grids: GridState::default(),
-            surfaces: Surfaces::new(scene, accel),
+            surfaces,
             gather_rays: 0.0,
         }
     }
@@ -810,7 +811,7 @@ fn probe_costs(
         progress,
         &mut scratch,
     );
-    let surfaces = Surfaces::new(scene, accel);
+    let surfaces = Surfaces::new(scene, accel, &probe_settings);
     let input = PhotonData {
         estimator: Estimator::for_pass(&probe_settings, 0, &photons.map, grids.view(), &surfaces)
             .with_gather_rays(probe_gather_rays(probe, requested)),
@@ -1273,7 +1274,7 @@ pub fn render_camera(
 ) -> Film {
     let (w, h) = resolution(camera, settings);
     let mut acc = Accumulator::new(settings.method.needs().accumulation, w, h, settings.spp);
-    let surfaces = Surfaces::new(scene, &prepared.accel);
+    let surfaces = Surfaces::new(scene, &prepared.accel, settings);
     let input = PhotonData {
         estimator: Estimator::for_pass(settings, 0, &prepared.map, prepared.grids.view(), &surfaces),
         irradiance: prepared.irradiance.as_ref(),

@@ -113,7 +113,7 @@ fn a_camera_pass_past_its_deadline_keeps_its_required_sweeps_only() {
     let scene = scene();
     let settings = small();
     let prepared = photongrid::prepare(&scene, &settings, &Progress::quiet(), &mut Default::default()).unwrap();
-    let surfaces = photongrid::estimate::Surfaces::new(&scene, &prepared.accel);
+    let surfaces = photongrid::estimate::Surfaces::new(&scene, &prepared.accel, &settings);
     let input = PhotonData {
         estimator: Estimator::for_pass(&settings, 0, &prepared.map, prepared.grids.view(), &surfaces),
         irradiance: prepared.irradiance.as_ref(),

@@ -6,6 +6,7 @@
 use super::photon_map::NORMAL_AGREEMENT;
 use crate::accel::Accel;
 use crate::scene::{Scene, Triangle};
+use crate::settings::Settings;
 use glam::{DVec2, Vec3};
 use std::f32::consts::PI;
 use std::sync::atomic::{AtomicU32, Ordering};
@@ -27,6 +28,8 @@ pub struct Surfaces<'a> {
     receives: Vec<bool>,
     /// Built at the first query (renders with final gathering never ask).
     tables: OnceLock<Tables>,
+    /// Largest radius a clearance is measured to: twice the largest a photon query reaches.
+    reach: f32,
 }
 
 /// Per triangle: what decides most triangles without clipping, and per side (front, back),
@@ -39,29 +42,33 @@ struct Tables {
 }
 
 impl<'a> Surfaces<'a> {
-    /// The receiving surfaces of `scene`, found through its BVH.
-    pub fn new(scene: &'a Scene, accel: &'a Accel) -> Self {
+    /// The receiving surfaces of `scene`, found through its BVH, for photon queries of
+    /// `settings` (whose `max_radius` bounds them).
+    pub fn new(scene: &'a Scene, accel: &'a Accel, settings: &Settings) -> Self {
         let receives: Vec<bool> = scene.materials.iter().map(|m| m.receives_photons()).collect();
-        Surfaces::of(&scene.triangles, &receives, accel)
+        let max_radius = settings.max_radius * scene.bounds.diagonal();
+        Surfaces::of(&scene.triangles, &receives, accel, max_radius)
     }
 
     /// `triangles` (indexed by `accel`), of which those whose material `m` has `receives[m]`
-    /// hold photons.
-    pub fn of(triangles: &'a [Triangle], receives: &[bool], accel: &'a Accel) -> Self {
+    /// hold photons, for queries reaching `max_radius` at most.
+    pub fn of(triangles: &'a [Triangle], receives: &[bool], accel: &'a Accel, max_radius: f32) -> Self {
         Surfaces {
             accel,
             triangles,
             receives: receives.to_vec(),
             tables: OnceLock::new(),
+            reach: 2.0 * max_radius,
         }
     }
 
     fn tables(&self) -> &Tables {
+        // Sequential: the first query comes from a parallel camera pass, and a rayon job
+        // waiting inside `get_or_init` could pick up another query of the same lock.
         self.tables.get_or_init(|| {
-            use rayon::prelude::*;
             let receives = |t: &Triangle| self.receives.get(t.material as usize).copied().unwrap_or(false);
             Tables {
-                patches: self.triangles.par_iter().map(|t| Patch::of(t, receives(t))).collect(),
+                patches: self.triangles.iter().map(|t| Patch::of(t, receives(t))).collect(),
                 clearance: (0..self.triangles.len())
                     .map(|_| [AtomicU32::new(UNKNOWN), AtomicU32::new(UNKNOWN)])
                     .collect(),
@@ -73,8 +80,11 @@ impl<'a> Surfaces<'a> {
     /// that a photon query at `x` on triangle `triangle`, on the side `facing`, gathers from:
     /// triangles whose normal agrees with `facing` as a photon's must ([`NORMAL_AGREEMENT`]),
     /// taking each triangle's side by its winding relative to the query's triangle (so the
-    /// inner faces of a closed solid, which photons never reach, do not count). Each
-    /// triangle's part is the disc where the sphere cuts its plane, clipped to it.
+    /// inner faces of a closed solid, which photons never reach, do not count; an open sheet
+    /// folded so that its other side faces the query is not counted either). Each
+    /// triangle's part is the disc where the sphere cuts its plane, clipped to it. No area
+    /// exceeds πr²: the rule shrinks the divisor where a disc leaves the surface, and
+    /// overlapping triangles (a decal, doubled geometry) must not halve the estimate.
     pub fn kernel_areas(&self, x: Vec3, facing: Vec3, triangle: u32, r2: &[f32], areas: &mut [f32]) {
         let areas = &mut areas[..r2.len()];
         let Some(own) = self.triangles.get(triangle as usize) else {
@@ -82,25 +92,25 @@ impl<'a> Surfaces<'a> {
         };
         let front = own.cross().dot(facing) >= 0.0;
         let reach = r2.iter().fold(0.0f32, |a, &b| a.max(b)).sqrt();
-        let centroid = (own.p[0] + own.p[1] + own.p[2]) / 3.0;
-        let d = (x - centroid).length();
-        if reach + d <= self.clearance(triangle, front, 2.0 * (reach + d)) {
+        let d = (x - self.tables().patches[triangle as usize].centroid).length();
+        if reach + d <= self.clearance(triangle, front) {
             return flat_disc_areas(r2, areas);
         }
-        self.surface_in_spheres(x, facing, front, r2, areas);
-        // A query point on a sliver the BVH rounds away: never divide by nothing.
+        for (r2, areas) in r2.chunks(32).zip(areas.chunks_mut(32)) {
+            self.surface_in_spheres(x, facing, front, r2, areas);
+        }
         for (a, &r2) in areas.iter_mut().zip(r2) {
-            if !(*a > 0.0) {
-                *a = PI * r2;
-            }
+            // A query point on a sliver the BVH rounds away: never divide by nothing.
+            *a = if *a > 0.0 { a.min(PI * r2) } else { PI * r2 };
         }
     }
 
     /// The radius about triangle `t`'s centroid within which the surface on its side (`front`)
-    /// is a whole disc, measured by doubling radii from the triangle's size on, up to `cap`
-    /// at the first query (later queries reaching farther measure their triangles): a gently
-    /// curved mesh of a million triangles would otherwise be searched whole.
-    fn clearance(&self, t: u32, front: bool, cap: f32) -> f32 {
+    /// is a whole disc, measured by doubling radii from the triangle's size on, up to twice
+    /// the largest query radius (a gently curved mesh of a million triangles would otherwise
+    /// be searched whole). Approximate: a deficit under the tolerance at one radius may be a
+    /// larger share of a smaller disc inside it.
+    fn clearance(&self, t: u32, front: bool) -> f32 {
         let slot = &self.tables().clearance[t as usize][usize::from(!front)];
         let known = slot.load(Ordering::Relaxed);
         if known != UNKNOWN {
@@ -112,20 +122,20 @@ impl<'a> Surfaces<'a> {
         let mut r = 2.0 * tri.p.iter().fold(0.0f32, |m, p| m.max((*p - c).length()));
         let mut whole = 0.0;
         let mut area = [0.0];
-        while r > 0.0 && r <= cap {
+        while r > 0.0 && r <= self.reach {
             self.surface_in_spheres(c, n, front, &[r * r], &mut area);
-            if (area[0] / (PI * r * r) - 1.0).abs() > WHOLE_DISC_TOLERANCE {
+            if area[0] < (1.0 - WHOLE_DISC_TOLERANCE) * PI * r * r {
                 break;
             }
             whole = r;
             r *= 2.0;
         }
-        // Threads that race here measure the same value.
+        // Threads that race here measure the same value (it depends on the geometry only).
         slot.store(f32::to_bits(whole), Ordering::Relaxed);
         whole
     }
 
-    /// [`Surfaces::kernel_areas`] from the triangles.
+    /// [`Surfaces::kernel_areas`] from the triangles, for at most 32 radii.
     fn surface_in_spheres(&self, x: Vec3, facing: Vec3, front: bool, r2: &[f32], areas: &mut [f32]) {
         areas.fill(0.0);
         let side = if front { 1.0 } else { -1.0 };
@@ -205,7 +215,7 @@ fn add_clipped(tri: &Triangle, n: Vec3, x: Vec3, r2: &[f32], clip: u32, areas: &
             continue;
         }
         *a += if far <= r2 {
-            0.5 * tri.cross().length()
+            tri.area()
         } else {
             disc_triangle_area(flat, ((r2 - h * h) as f64).sqrt()) as f32
         };
@@ -369,7 +379,7 @@ mod tests {
         triangles.extend(quad(o, w, d, 0)); // bottom (−y)
         triangles.extend(quad(o + d + Vec3::Z * 0.01, w, h, 1)); // a mirror just in front
         let accel = Accel::build(&triangles);
-        let s = Surfaces::of(&triangles, &[true, false], &accel);
+        let s = Surfaces::of(&triangles, &[true, false], &accel, 0.5);
         let r2 = [0.01f32 * 0.01, 0.1 * 0.1];
         let mut areas = [0.0; 2];
         // Mid-front, 2 cm up: a 1 cm disc lies within the strip, a 10 cm one keeps its
@@ -406,7 +416,7 @@ mod tests {
             }
         }
         let accel = Accel::build(&triangles);
-        let s = Surfaces::of(&triangles, &[true], &accel);
+        let s = Surfaces::of(&triangles, &[true], &accel, 0.5);
         let mut rng = Rng::keyed(9, 0, 0);
         let r2 = [0.01f32 * 0.01, 0.05 * 0.05, 0.1 * 0.1];
         let (mut fast, mut exact) = ([0.0; 3], [0.0; 3]);
@@ -423,10 +433,33 @@ mod tests {
                 );
             }
         }
+        // The shortcut does fire inside the plate.
+        let middle = 2 * (32 * n + 32) as u32;
+        assert!(s.clearance(middle, true) >= 0.2, "{}", s.clearance(middle, true));
         s.kernel_areas(Vec3::new(0.5, 0.0, 0.0), Vec3::Y, 2 * 32 * n as u32, &r2, &mut fast);
         assert!((fast[2] / (0.5 * PI * r2[2]) - 1.0).abs() < 1e-3, "{fast:?}");
         s.kernel_areas(Vec3::ZERO, Vec3::Y, 0, &r2, &mut fast);
         assert!((fast[2] / (0.25 * PI * r2[2]) - 1.0).abs() < 1e-3, "{fast:?}");
+    }
+
+    /// A quad seen from its back counts whole (its side by winding); a copy of it lying on it
+    /// does not double the area.
+    #[test]
+    fn back_sides_and_doubled_triangles() {
+        let mut triangles = quad(Vec3::new(-1.0, 0.0, -1.0), Vec3::Z * 2.0, Vec3::X * 2.0, 0).to_vec();
+        let accel = Accel::build(&triangles);
+        let s = Surfaces::of(&triangles, &[true], &accel, 0.5);
+        let r2 = [0.1f32 * 0.1];
+        let mut a = [0.0];
+        s.kernel_areas(Vec3::ZERO, -Vec3::Y, 0, &r2, &mut a);
+        assert!((a[0] / (PI * r2[0]) - 1.0).abs() < 1e-4, "from the back: {a:?}");
+        triangles.extend_from_within(..);
+        let accel = Accel::build(&triangles);
+        let s = Surfaces::of(&triangles, &[true], &accel, 0.5);
+        s.surface_in_spheres(Vec3::new(0.95, 0.0, 0.0), Vec3::Y, true, &r2, &mut a);
+        assert!(a[0] > 1.5 * 0.5 * PI * r2[0], "the copy is counted: {a:?}");
+        s.kernel_areas(Vec3::new(0.95, 0.0, 0.0), Vec3::Y, 0, &r2, &mut a);
+        assert!(a[0] <= PI * r2[0] * 1.0001, "capped: {a:?}");
     }
 
     /// Light on a strip 4 cm wide (a shelf board's front), read by the nested discs of up to
@@ -442,7 +475,7 @@ mod tests {
         let triangles = quad(Vec3::new(-1.0, 0.0, -0.02), Vec3::X * len, Vec3::Z * width, 0)
             .map(|t| tri(t.p[0], t.p[2], t.p[1], 0));
         let accel = Accel::build(&triangles);
-        let s = Surfaces::of(&triangles, &[true], &accel);
+        let s = Surfaces::of(&triangles, &[true], &accel, 0.5);
         let mut rng = Rng::keyed(13, 0, 0);
         let n = (len * width * per_m2) as usize;
         let photons: Vec<Photon> = (0..n)
@@ -489,7 +522,7 @@ mod tests {
             .map(|[a, b, c]| tri(a, b, c, 0))
             .collect();
         let accel = Accel::build(&triangles);
-        let s = Surfaces::of(&triangles, &[true], &accel);
+        let s = Surfaces::of(&triangles, &[true], &accel, 0.5);
         let r2 = [0.02f32 * 0.02, 0.1 * 0.1, 0.2 * 0.2];
         let mut areas = [0.0; 3];
         for (i, t) in triangles.iter().enumerate().step_by(97) {
