@@ -116,10 +116,9 @@ impl<'a> Surfaces<'a> {
         if known != UNKNOWN {
             return f32::from_bits(known);
         }
-        let tri = &self.triangles[t as usize];
-        let c = (tri.p[0] + tri.p[1] + tri.p[2]) / 3.0;
-        let n = tri.cross().normalize_or_zero() * if front { 1.0 } else { -1.0 };
-        let mut r = 2.0 * tri.p.iter().fold(0.0f32, |m, p| m.max((*p - c).length()));
+        let patch = &self.tables().patches[t as usize];
+        let (c, n) = (patch.centroid, patch.normal * if front { 1.0 } else { -1.0 });
+        let mut r = 2.0 * patch.spread;
         let mut whole = 0.0;
         let mut area = [0.0];
         while r > 0.0 && r <= self.reach {
@@ -137,6 +136,7 @@ impl<'a> Surfaces<'a> {
 
     /// [`Surfaces::kernel_areas`] from the triangles, for at most 32 radii.
     fn surface_in_spheres(&self, x: Vec3, facing: Vec3, front: bool, r2: &[f32], areas: &mut [f32]) {
+        debug_assert!(r2.len() <= 32 && areas.len() >= r2.len());
         areas.fill(0.0);
         let side = if front { 1.0 } else { -1.0 };
         let reach = r2.iter().fold(0.0f32, |a, &b| a.max(b)).sqrt();
