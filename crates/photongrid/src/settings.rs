@@ -92,7 +92,8 @@ pub struct Settings {
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", default_value_t = Settings::default().ici_threshold))]
     pub ici_threshold: f32,
     /// Multiscale estimate: the same for caustic photons (lower: caustic filaments stay
-    /// sharper, at some grain).
+    /// sharper, at some grain). Below 2, kernels that should hold fewer than 8 photons still
+    /// use 2: so few photons say too little for a narrower interval.
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", default_value_t = Settings::default().caustic_ici_threshold))]
     pub caustic_ici_threshold: f32,
     /// Multiscale estimate: photons per finest cell where a plane's photons are densest.

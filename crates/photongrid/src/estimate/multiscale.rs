@@ -131,7 +131,6 @@ pub fn choose_scale(
     floor: f32,
     passes: f32,
 ) -> Option<LayerEstimate> {
-    let (mut lo, mut hi) = (f32::NEG_INFINITY, f32::INFINITY);
     let mut best = None;
     // Finer scales so far: (estimate, its variance, its area × passes, leverage).
     let mut finer: [(f32, f32, f32, f32); 24] = [(0.0, 0.0, 0.0, 0.0); 24];
@@ -147,16 +146,21 @@ pub fn choose_scale(
         let e = luminance(t.flux) * norm;
         let var = (t.var + floor) * leverage / (t.area * passes).powi(2);
         let sigma = var.sqrt();
-        lo = lo.max(e - gamma * sigma);
-        hi = hi.min(e + gamma * sigma);
-        if lo > hi {
-            break;
-        }
-        let contradicted = finer[..n].iter().any(|&(ef, vf, af, lf)| {
+        // Each finer interval's width follows the photons its kernel should hold if the light
+        // were as this kernel says, not the photons it caught: a kernel that caught few by
+        // chance gets no wider interval than one that caught many.
+        let g = interval_width(gamma, t.count);
+        let (mut lo, mut hi) = (e - g * sigma, e + g * sigma);
+        let mut contradicted = false;
+        for &(ef, vf, af, lf) in &finer[..n] {
+            let g = interval_width(gamma, e * af / photon_power);
+            let sf = vf.sqrt();
+            lo = lo.max(ef - g * sf);
+            hi = hi.min(ef + g * sf);
             let v = vf.max(poisson_variance(e, photon_power, af) * lf);
-            (ef - e).abs() > gamma * v.sqrt()
-        });
-        if contradicted {
+            contradicted |= (ef - e).abs() > g * v.sqrt();
+        }
+        if lo > hi || contradicted {
             break;
         }
         if n < finer.len() {
@@ -172,6 +176,27 @@ pub fn choose_scale(
         });
     }
     best
+}
+
+/// Photons a kernel must hold for its confidence interval to be narrower than
+/// [`FEW_PHOTONS_GAMMA`] standard deviations. Below that the normal approximation of a Poisson
+/// count misplaces the interval (Garwood's 84 % upper bound for 2 counted photons is 4.6, the
+/// normal one 3.4): at the caustic layer's 1σ a fine kernel that by chance caught few photons
+/// ended the widening and read dark, a speck a kernel wide (the pool floor's dark flecks;
+/// docs/multiscale.md, "Few photons, wider intervals").
+const NARROW_INTERVAL_MIN_PHOTONS: f32 = 8.0;
+
+/// The interval width (standard deviations) used where a kernel holds too few photons for a
+/// narrower one ([`NARROW_INTERVAL_MIN_PHOTONS`]): the global layers' default.
+const FEW_PHOTONS_GAMMA: f32 = 2.0;
+
+/// The interval width for a kernel of `photons` photons when `gamma` is asked for.
+fn interval_width(gamma: f32, photons: f32) -> f32 {
+    if photons < NARROW_INTERVAL_MIN_PHOTONS {
+        gamma.max(FEW_PHOTONS_GAMMA)
+    } else {
+        gamma
+    }
 }
 
 /// The caustic estimate's widest chosen level still checked against its neighbours'
@@ -972,27 +997,30 @@ mod tests {
         assert!(bias.abs() < 0.01, "mean relative error beneath the light {bias:.4}");
     }
 
-    /// A point light's hard shadow edge at x = 1 (light for x > 1 only, 1 W/m²): the lit
-    /// side reads its level up to the edge, not the mean of a kernel half in the shadow, and
-    /// the shadow reads no light. Without the dark cells the first 2 cm of the lit side read
-    /// 0.6–0.8 and light leaked a kernel's reach into the shadow.
+    /// Flat caustic light of 1 W/m² over the 2 m square (200 000 photons: two per finest cell),
+    /// and one photon's variance.
+    fn flat_caustic(seed: u64) -> (MultiscaleGrids, f32) {
+        let n = 200_000;
+        let power = Rgb::splat(4.0 / n as f32);
+        let g = square_grids(n, seed, |rng| {
+            let at = p(2.0 * rng.uniform(), 2.0 * rng.uniform());
+            Some(Photon::new(at, power, Vec3::Y, Vec3::Y, PhotonKind::Caustic))
+        });
+        let floor = g.mean_power[CAUSTIC] * g.mean_power[CAUSTIC];
+        (g, floor)
+    }
+
     /// Flat caustic light: a fine kernel that stopped by chance is read at its neighbours'
     /// (wider) scale, so the estimate's spread over the plane falls; a narrow line keeps its
     /// sharpness (`a_caustic_finer_than_a_cell_follows_the_pixels_and_keeps_its_power`).
     #[test]
     fn a_chance_stop_in_flat_caustic_light_takes_its_neighbours_scale() {
-        let n = 200_000;
-        let power = Rgb::splat(4.0 / n as f32);
-        let g = square_grids(n, 3, |rng| {
-            let at = p(2.0 * rng.uniform(), 2.0 * rng.uniform());
-            Some(Photon::new(at, power, Vec3::Y, Vec3::Y, PhotonKind::Caustic))
-        });
+        let (g, floor) = flat_caustic(3);
         let gammas = Gammas {
             global: 2.0,
             caustic: 1.0,
         };
         let t = &g.textures[0];
-        let floor = g.mean_power[CAUSTIC] * g.mean_power[CAUSTIC];
         let mut rng = Rng::keyed(1, 2, 3);
         let (mut with, mut without, mut fine_alone) = (0.0f32, 0.0f32, 0);
         let points = 2000;
@@ -1000,7 +1028,7 @@ mod tests {
             let q = p(0.3 + 1.4 * rng.uniform(), 0.3 + 1.4 * rng.uniform());
             let alone = choose_scale(t[CAUSTIC].scales(q), gammas.caustic, floor, 1.0).expect("lit");
             let chosen = g.caustic_consensus(&t[CAUSTIC], q, gammas, alone);
-            fine_alone += usize::from(alone.level <= 1);
+            fine_alone += usize::from(alone.level <= CONSENSUS_MAX_LEVEL);
             without += (alone.irradiance.x - 1.0).powi(2) / points as f32;
             with += (chosen.irradiance.x - 1.0).powi(2) / points as f32;
         }
@@ -1013,6 +1041,31 @@ mod tests {
             with < 0.7 * without,
             "RMS error {with} with the consensus, {without} without"
         );
+    }
+
+    /// Flat caustic light with two photons per finest cell, read at the caustic layer's narrow
+    /// interval without the consensus: a kernel that by chance caught few photons must not end
+    /// the widening at a dark read (the normal approximation's interval for 0–2 photons lies
+    /// too low), so the reads are not biased dark.
+    #[test]
+    fn few_photons_do_not_stop_a_narrow_interval_dark() {
+        let (g, floor) = flat_caustic(11);
+        let t = &g.textures[0];
+        let mut rng = Rng::keyed(4, 5, 6);
+        let points = 4000;
+        let (mut sum, mut dark) = (0.0f64, 0);
+        for _ in 0..points {
+            let q = p(0.3 + 1.4 * rng.uniform(), 0.3 + 1.4 * rng.uniform());
+            let e = choose_scale(t[CAUSTIC].scales(q), 1.0, floor, 1.0)
+                .expect("lit")
+                .irradiance
+                .x;
+            sum += e as f64;
+            dark += usize::from(e < 0.5);
+        }
+        let mean = sum / points as f64;
+        assert!((mean - 1.0).abs() < 0.02, "mean read {mean} of 1");
+        assert!(dark * 200 < points, "{dark} of {points} reads below half the light");
     }
 
     /// A caustic line narrower than the finest cell (a fold seen close up, pixels smaller than
@@ -1100,6 +1153,10 @@ mod tests {
         );
     }
 
+    /// A point light's hard shadow edge at x = 1 (light for x > 1 only, 1 W/m²): the lit
+    /// side reads its level up to the edge, not the mean of a kernel half in the shadow, and
+    /// the shadow reads no light. Without the dark cells the first 2 cm of the lit side read
+    /// 0.6–0.8 and light leaked a kernel's reach into the shadow.
     #[test]
     fn a_hard_shadow_edge_stays_sharp_on_both_sides() {
         let n = 400_000;
