@@ -124,7 +124,8 @@ const MAX_CURVATURE_CORRECTION: f32 = 0.15;
 /// interval and light leaked a kernel's reach into shadows (a quarter of the light beside a
 /// blocker). Each finer scale is therefore also tested against the variance it would have
 /// if the light were as the wider kernel says ([`poisson_variance`]): no photons where the
-/// wider kernel expects dozens ends the widening.
+/// wider kernel expects dozens ends the widening. Intervals narrower than 2σ are kept for
+/// kernels that should hold enough photons for them ([`interval_width`]).
 pub fn choose_scale(
     scales: impl Iterator<Item = ScaleEstimate>,
     gamma: f32,
@@ -153,12 +154,12 @@ pub fn choose_scale(
         let (mut lo, mut hi) = (e - g * sigma, e + g * sigma);
         let mut contradicted = false;
         for &(ef, vf, af, lf) in &finer[..n] {
-            let g = interval_width(gamma, e * af / photon_power);
+            let gf = interval_width(gamma, e * af / photon_power);
             let sf = vf.sqrt();
-            lo = lo.max(ef - g * sf);
-            hi = hi.min(ef + g * sf);
+            lo = lo.max(ef - gf * sf);
+            hi = hi.min(ef + gf * sf);
             let v = vf.max(poisson_variance(e, photon_power, af) * lf);
-            contradicted |= (ef - e).abs() > g * v.sqrt();
+            contradicted |= (ef - e).abs() > gf * v.sqrt();
         }
         if lo > hi || contradicted {
             break;
