@@ -88,12 +88,13 @@ pub struct Settings {
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", default_value_t = Settings::default().wavelet_levels))]
     pub wavelet_levels: usize,
     /// Multiscale estimate: a scale is kept while its estimate stays within this many
-    /// standard deviations of every finer one (higher: smoother, more blur).
+    /// standard deviations of every finer one (higher: smoother, more blur). Below 2, kernels
+    /// that should hold fewer than 8 photons still use 2: so few photons say too little for a
+    /// narrower interval.
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", default_value_t = Settings::default().ici_threshold))]
     pub ici_threshold: f32,
     /// Multiscale estimate: the same for caustic photons (lower: caustic filaments stay
-    /// sharper, at some grain). Below 2, kernels that should hold fewer than 8 photons still
-    /// use 2: so few photons say too little for a narrower interval.
+    /// sharper, at some grain; the same 8-photon rule).
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", default_value_t = Settings::default().caustic_ici_threshold))]
     pub caustic_ici_threshold: f32,
     /// Multiscale estimate: photons per finest cell where a plane's photons are densest.
