@@ -133,8 +133,9 @@ pub fn choose_scale(
     passes: f32,
 ) -> Option<LayerEstimate> {
     let mut best = None;
-    // Finer scales so far: (estimate, its variance, its area × passes, leverage).
-    let mut finer: [(f32, f32, f32, f32); 24] = [(0.0, 0.0, 0.0, 0.0); 24];
+    // Finer scales so far: (estimate, its variance and standard deviation, its area × passes,
+    // leverage).
+    let mut finer: [(f32, f32, f32, f32, f32); 24] = [(0.0, 0.0, 0.0, 0.0, 0.0); 24];
     let mut n = 0;
     let photon_power = floor.sqrt();
     for s in scales {
@@ -153,9 +154,8 @@ pub fn choose_scale(
         let g = interval_width(gamma, t.count);
         let (mut lo, mut hi) = (e - g * sigma, e + g * sigma);
         let mut contradicted = false;
-        for &(ef, vf, af, lf) in &finer[..n] {
+        for &(ef, vf, sf, af, lf) in &finer[..n] {
             let gf = interval_width(gamma, e * af / photon_power);
-            let sf = vf.sqrt();
             lo = lo.max(ef - gf * sf);
             hi = hi.min(ef + gf * sf);
             let v = vf.max(poisson_variance(e, photon_power, af) * lf);
@@ -165,7 +165,7 @@ pub fn choose_scale(
             break;
         }
         if n < finer.len() {
-            finer[n] = (e, var, t.area * passes, leverage);
+            finer[n] = (e, var, sigma, t.area * passes, leverage);
             n += 1;
         }
         best = Some(LayerEstimate {
