@@ -304,29 +304,6 @@ fn alpha_cut_outs_and_blending_for_shadow_rays_and_photons() {
         direct,
         ..Settings::default()
     };
-    for m in [
-        photongrid::settings::Method::Knn,
-        photongrid::settings::Method::Multiscale,
-    ] {
-        let dir = TempDir::new("alpha");
-        let path = plane_scene(&dir, floor.clone(), Some(blocker(0.7, ("MASK", Some(0.5)))));
-        let (_, film) = render(
-            &path,
-            &Settings {
-                method: m,
-                ..open(DirectLighting::Photons)
-            },
-        );
-        eprintln!("EXP {m:?}");
-        for py in 0..H {
-            let mut line = String::new();
-            for px in 0..W {
-                let v = lum(film.color[(py * W + px) as usize]);
-                line.push_str(&format!("{:2.0} ", (v * 1000.0).min(99.0)));
-            }
-            eprintln!("EXP {line}");
-        }
-    }
     for direct in [DirectLighting::ShadowRays, DirectLighting::Photons] {
         let tol = if direct == DirectLighting::Photons { 0.1 } else { 0.03 };
         let cases = [
@@ -501,4 +478,55 @@ fn a_normal_map_shadows_grazing_light_on_a_lambert_floor_as_cycles_does() {
         "the case must tell the shadowing apart: {plain} vs {want}"
     );
     assert!((got / want - 1.0).abs() < 0.02, "{got} vs {want}");
+}
+
+#[test]
+fn a_sun_pointing_straight_down_casts_a_shadow() {
+    // Blender's default sun points straight down: its direction has −0.0 components, which
+    // once made every shadow ray and photon miss (the BVH read the wrong octant). A black
+    // square above the camera shades the middle of a Lambert floor; the camera cannot see it.
+    let dir = TempDir::new("sun_down");
+    let mut g = Gltf::new();
+    let floor = g.material(Material::lambert(0.5));
+    let roof = g.material(Material {
+        double_sided: true,
+        ..Material::lambert(0.0)
+    });
+    let mesh = g.mesh(vec![
+        floor_quad(10.0, 0.0).material(floor),
+        floor_quad(0.5, 6.0).material(roof),
+    ]);
+    g.root(Node {
+        mesh: Some(mesh),
+        ..Default::default()
+    });
+    let sun = g.light(Light::directional(683.0));
+    g.root(Node {
+        transform: Transform::tr([0.0, 10.0, 0.0], look_down()),
+        light: Some(sun),
+        ..Default::default()
+    });
+    VIEW.add_camera(&mut g);
+    let path = g.write_gltf(dir.path(), "sun_down.gltf");
+    for direct in [DirectLighting::ShadowRays, DirectLighting::Photons] {
+        let settings = Settings {
+            photons: 200_000,
+            spp: 4,
+            width: Some(W),
+            height: Some(H),
+            direct,
+            ..Settings::default()
+        };
+        let (_, film) = render(&path, &settings);
+        let mean = |keep: &dyn Fn(f64, f64) -> bool| {
+            let px = VIEW.select(keep);
+            px.iter().map(|&i| lum(film.color[i])).sum::<f64>() / px.len() as f64
+        };
+        // 1 W/m² on a floor of albedo 0.5: L = 0.5 / π.
+        let lit = mean(&|x, z| x.abs() > 0.7 || z.abs() > 0.7) / (0.5 / PI);
+        let shade = mean(&|x, z| x.abs() < 0.35 && z.abs() < 0.35) / (0.5 / PI);
+        eprintln!("{direct:?}: lit {lit}, in the shadow {shade} of 1 W/m² on the floor");
+        assert!((lit - 1.0).abs() < 0.05, "{direct:?}: lit floor {lit}");
+        assert!(shade < 0.05, "{direct:?}: the shadow lets {shade} through");
+    }
 }
