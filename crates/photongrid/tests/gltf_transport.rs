@@ -2,7 +2,8 @@
 //! written here independently of the library: a point light over a rough metal plane (the GGX
 //! highlight, with Cycles' multiple-scattering compensation), a white rough metal facing the
 //! camera inside a uniformly emitting enclosure (a furnace: radiance = the BSDF's directional
-//! albedo, 1 with the compensation), and alpha cut-outs and blending for shadow rays and photons.
+//! albedo, 1 with the compensation), alpha cut-outs and blending for shadow rays and photons, a
+//! glass slab's Fresnel transmittance and the shadow of a sun pointing straight down.
 
 use photongrid::film::Film;
 use photongrid::pipeline::{prepare, render_camera, select_cameras, PhaseTimes};
@@ -529,4 +530,63 @@ fn a_sun_pointing_straight_down_casts_a_shadow() {
         assert!((lit - 1.0).abs() < 0.05, "{direct:?}: lit floor {lit}");
         assert!(shade < 0.05, "{direct:?}: the shadow lets {shade} through");
     }
+}
+
+#[test]
+fn a_smooth_glass_slab_lets_through_what_fresnel_says() {
+    // A sun 57° from the zenith over a 3 cm glTF glass slab (a closed box far wider than the
+    // floor under it): the photons' power that reaches the floor is the slab's transmittance
+    // T² / (1 − R²) with the dielectric Fresnel reflectance R at 57° (n = 1.5), of the sun's
+    // power on the floor, cos 57° per m².
+    let dir = TempDir::new("slab");
+    let mut g = Gltf::new();
+    let floor = g.material(Material::lambert(0.5));
+    let glass = g.material(Material {
+        base_color: [1.0; 4],
+        roughness: 0.0,
+        transmission: Some(1.0),
+        specular: None,
+        double_sided: true,
+        ..Default::default()
+    });
+    let mesh = g.mesh(vec![
+        floor_quad(10.0, 0.0).material(floor),
+        harness::box_prim([-40.0, 6.0, -40.0], [40.0, 6.03, 40.0]).material(glass),
+    ]);
+    g.root(Node {
+        mesh: Some(mesh),
+        ..Default::default()
+    });
+    let theta = 57f64.to_radians();
+    let sun = g.light(Light::directional(683.0));
+    // The sun first points straight down, then leans by θ about Z.
+    let r = quat_mul(quat([0.0, 0.0, 1.0], theta as f32), look_down());
+    g.root(Node {
+        transform: Transform::tr([0.0, 10.0, 0.0], r),
+        light: Some(sun),
+        ..Default::default()
+    });
+    VIEW.add_camera(&mut g);
+    let path = g.write_gltf(dir.path(), "slab.gltf");
+    let settings = Settings {
+        photons: 100_000,
+        caustic_photons: 2_000_000,
+        spp: 1,
+        width: Some(W),
+        height: Some(H),
+        ..Settings::default()
+    };
+    let scene = photongrid::load(&path).unwrap_or_else(|e| panic!("{e}"));
+    let mut times = PhaseTimes::default();
+    let prepared = prepare(&scene, &settings, &Progress::quiet(), &mut times).unwrap();
+    // Exact Fresnel, unpolarised, entering at θ (leaving at the refracted angle: the same R).
+    let (ci, n) = (theta.cos(), 1.5);
+    let ct = (1.0 - theta.sin().powi(2) / (n * n)).sqrt();
+    let rs = ((ci - n * ct) / (ci + n * ct)).powi(2);
+    let rp = ((n * ci - ct) / (n * ci + ct)).powi(2);
+    let r = 0.5 * (rs + rp);
+    let want = (1.0 - r).powi(2) / (1.0 - r * r);
+    let got = prepared.photon_stats.caustic_power / (20.0 * 20.0 * theta.cos());
+    eprintln!("slab transmittance {got:.4}, Fresnel {want:.4}");
+    assert!((got / want - 1.0).abs() < 0.015, "{got} vs {want}");
 }

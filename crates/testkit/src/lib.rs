@@ -763,6 +763,17 @@ pub fn quat(axis: [f32; 3], angle: f32) -> [f32; 4] {
     [axis[0] * s, axis[1] * s, axis[2] * s, c]
 }
 
+/// The rotation `a` after `b` (the quaternion product a·b; (x, y, z, w) as [`quat`]).
+pub fn quat_mul(a: [f32; 4], b: [f32; 4]) -> [f32; 4] {
+    let ([ax, ay, az, aw], [bx, by, bz, bw]) = (a, b);
+    [
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+        aw * bw - ax * bx - ay * by - az * bz,
+    ]
+}
+
 /// The rotation that turns a node's −Z (where cameras and lights point) to straight down (−Y).
 pub fn look_down() -> [f32; 4] {
     quat([1.0, 0.0, 0.0], -std::f32::consts::FRAC_PI_2)
