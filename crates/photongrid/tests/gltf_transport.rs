@@ -481,34 +481,38 @@ fn a_normal_map_shadows_grazing_light_on_a_lambert_floor_as_cycles_does() {
     assert!((got / want - 1.0).abs() < 0.02, "{got} vs {want}");
 }
 
-#[test]
-fn a_sun_pointing_straight_down_casts_a_shadow() {
-    // Blender's default sun points straight down: its direction has −0.0 components, which
-    // once made every shadow ray and photon miss (the BVH read the wrong octant). A black
-    // square above the camera shades the middle of a Lambert floor; the camera cannot see it.
-    let dir = TempDir::new("sun_down");
+/// A Lambert floor of albedo 0.5 at y = 0 (20 m square), `object` made of `material` above it,
+/// a 1 W/m² sun at `rotation` (its −Z turned by it) and the top view; returns the file.
+fn sun_over_floor(dir: &TempDir, object: Prim, material: Material, rotation: [f32; 4]) -> std::path::PathBuf {
     let mut g = Gltf::new();
     let floor = g.material(Material::lambert(0.5));
-    let roof = g.material(Material {
-        double_sided: true,
-        ..Material::lambert(0.0)
-    });
-    let mesh = g.mesh(vec![
-        floor_quad(10.0, 0.0).material(floor),
-        floor_quad(0.5, 6.0).material(roof),
-    ]);
+    let m = g.material(material);
+    let mesh = g.mesh(vec![floor_quad(10.0, 0.0).material(floor), object.material(m)]);
     g.root(Node {
         mesh: Some(mesh),
         ..Default::default()
     });
     let sun = g.light(Light::directional(683.0));
     g.root(Node {
-        transform: Transform::tr([0.0, 10.0, 0.0], look_down()),
+        transform: Transform::tr([0.0, 10.0, 0.0], rotation),
         light: Some(sun),
         ..Default::default()
     });
     VIEW.add_camera(&mut g);
-    let path = g.write_gltf(dir.path(), "sun_down.gltf");
+    g.write_gltf(dir.path(), "sun.gltf")
+}
+
+#[test]
+fn a_sun_pointing_straight_down_casts_a_shadow() {
+    // Blender's default sun points straight down: its direction has −0.0 components, which
+    // once made every shadow ray and photon miss (the BVH read the wrong octant). A black
+    // square above the camera shades the middle of a Lambert floor; the camera cannot see it.
+    let dir = TempDir::new("sun_down");
+    let roof = Material {
+        double_sided: true,
+        ..Material::lambert(0.0)
+    };
+    let path = sun_over_floor(&dir, floor_quad(0.5, 6.0), roof, look_down());
     for direct in [DirectLighting::ShadowRays, DirectLighting::Photons] {
         let settings = Settings {
             photons: 200_000,
@@ -539,35 +543,19 @@ fn a_smooth_glass_slab_lets_through_what_fresnel_says() {
     // T² / (1 − R²) with the dielectric Fresnel reflectance R at 57° (n = 1.5), of the sun's
     // power on the floor, cos 57° per m².
     let dir = TempDir::new("slab");
-    let mut g = Gltf::new();
-    let floor = g.material(Material::lambert(0.5));
-    let glass = g.material(Material {
+    let glass = Material {
         base_color: [1.0; 4],
         roughness: 0.0,
         transmission: Some(1.0),
         specular: None,
         double_sided: true,
         ..Default::default()
-    });
-    let mesh = g.mesh(vec![
-        floor_quad(10.0, 0.0).material(floor),
-        harness::box_prim([-40.0, 6.0, -40.0], [40.0, 6.03, 40.0]).material(glass),
-    ]);
-    g.root(Node {
-        mesh: Some(mesh),
-        ..Default::default()
-    });
+    };
+    let slab = harness::box_prim([-40.0, 6.0, -40.0], [40.0, 6.03, 40.0]);
     let theta = 57f64.to_radians();
-    let sun = g.light(Light::directional(683.0));
     // The sun first points straight down, then leans by θ about Z.
-    let r = quat_mul(quat([0.0, 0.0, 1.0], theta as f32), look_down());
-    g.root(Node {
-        transform: Transform::tr([0.0, 10.0, 0.0], r),
-        light: Some(sun),
-        ..Default::default()
-    });
-    VIEW.add_camera(&mut g);
-    let path = g.write_gltf(dir.path(), "slab.gltf");
+    let sun = quat_mul(quat([0.0, 0.0, 1.0], theta as f32), look_down());
+    let path = sun_over_floor(&dir, slab, glass, sun);
     let settings = Settings {
         photons: 100_000,
         caustic_photons: 2_000_000,
