@@ -242,6 +242,11 @@ impl Lobes {
         let mut w = [0.0f32; 3];
         if mask.reflection && present.reflection {
             w[0] = self.metallic * fm + dielectric * self.specular * fd;
+            if mask.transmission && present.transmission {
+                // Floored as the transmission: a microfacet tilted past the critical angle
+                // reflects totally where the macro surface's Fresnel is small.
+                w[0] = w[0].max(0.25 * dielectric * self.transmission * self.specular);
+            }
         }
         if mask.diffuse && present.diffuse {
             w[1] = dielectric * (1.0 - self.transmission) * (1.0 - self.specular * fd) * base;
