@@ -231,6 +231,30 @@ impl Lobes {
         }
     }
 
+    /// Whether reflection and transmission are sampled as one microfacet strategy: a visible
+    /// normal first, then reflected or refracted by its own Fresnel ([`Lobes::reflect_share`]).
+    /// Choosing by the macro surface's Fresnel instead gave fireflies inside rough glass, where
+    /// a microfacet tilted past the critical angle reflects totally while the macro surface
+    /// reflects 8 %.
+    fn microfacet_choice(&self, mask: LobeMask) -> bool {
+        let p = self.present();
+        mask.reflection && mask.transmission && p.reflection && p.transmission
+    }
+
+    /// The probability of reflecting off the visible microfacet of cosine `oh` with `wo`,
+    /// against refracting through it: the share of its reflection in what it scatters.
+    fn reflect_share(&self, oh: f32, inside: bool) -> f32 {
+        let dielectric = 1.0 - self.metallic;
+        let fd = luminance(self.fresnel_dielectric(oh, inside)).min(1.0);
+        let r = self.metallic * luminance(schlick(self.base, oh)) + dielectric * self.specular * fd;
+        let t = dielectric * self.transmission * (1.0 - self.specular * fd) * luminance(self.base);
+        if r + t > 0.0 {
+            r / (r + t)
+        } else {
+            0.5
+        }
+    }
+
     /// Probabilities of the three sampling strategies (reflection, diffuse, transmission),
     /// from approximate lobe albedos seen from `wo`; zero for lobes outside `mask`.
     pub fn strategies(&self, wo: Vec3, inside: bool, mask: LobeMask) -> [f32; 3] {
@@ -242,11 +266,6 @@ impl Lobes {
         let mut w = [0.0f32; 3];
         if mask.reflection && present.reflection {
             w[0] = self.metallic * fm + dielectric * self.specular * fd;
-            if mask.transmission && present.transmission {
-                // Floored as the transmission: a microfacet tilted past the critical angle
-                // reflects totally where the macro surface's Fresnel is small.
-                w[0] = w[0].max(0.25 * dielectric * self.transmission * self.specular);
-            }
         }
         if mask.diffuse && present.diffuse {
             w[1] = dielectric * (1.0 - self.transmission) * (1.0 - self.specular * fd) * base;
@@ -269,13 +288,19 @@ impl Lobes {
             return 0.0;
         }
         let p = self.strategies(wo, inside, mask);
+        let merged = self.microfacet_choice(mask);
         if wi.z > 0.0 {
             let mut pdf = 0.0;
             if p[0] > 0.0 {
                 let h = (wo + wi).normalize_or_zero();
                 let oh = wo.dot(h);
                 if oh > 0.0 {
-                    pdf += p[0] * ggx::pdf_visible(wo, h, self.alpha) / (4.0 * oh);
+                    let share = if merged {
+                        (p[0] + p[2]) * self.reflect_share(oh, inside)
+                    } else {
+                        p[0]
+                    };
+                    pdf += share * ggx::pdf_visible(wo, h, self.alpha) / (4.0 * oh);
                 }
             }
             if p[1] > 0.0 {
@@ -292,33 +317,49 @@ impl Lobes {
             };
             let (oh, ih) = (wo.dot(h), wi.dot(h));
             let denom = oh + eta * ih;
-            p[2] * ggx::pdf_visible(wo, h, self.alpha) * eta * eta * ih.abs() / (denom * denom)
+            let share = if merged {
+                (p[0] + p[2]) * (1.0 - self.reflect_share(oh, inside))
+            } else {
+                p[2]
+            };
+            share * ggx::pdf_visible(wo, h, self.alpha) * eta * eta * ih.abs() / (denom * denom)
         }
     }
 
     /// Sample a direction from the lobes in `mask`: a strategy by `u_lobe`, then a visible
-    /// microfacet normal (reflected or refracted) or a cosine-weighted direction by `u`. The
-    /// weight uses the density of the whole mixture (one-sample MIS over the strategies).
+    /// microfacet normal (reflected or refracted) or a cosine-weighted direction by `u`; where
+    /// both microfacet lobes are included, one strategy whose normal then reflects or refracts
+    /// by its own Fresnel ([`Lobes::microfacet_choice`]). The weight uses the density of the
+    /// whole mixture (one-sample MIS over the strategies).
     pub fn sample(&self, wo: Vec3, inside: bool, mask: LobeMask, u_lobe: f32, u: Vec2) -> Option<LobeSample> {
         if wo.z <= 0.0 {
             return None;
         }
         let p = self.strategies(wo, inside, mask);
-        let wi = if u_lobe < p[0] {
-            let h = ggx::sample_visible(wo, self.alpha, u);
-            super::reflect(-wo, h)
-        } else if u_lobe < p[0] + p[1] {
+        let diffuse = (p[0]..p[0] + p[1]).contains(&u_lobe);
+        let (wi, reflected) = if diffuse {
             let d = sampling::concentric_disk(u);
-            Vec3::new(d.x, d.y, (1.0 - d.length_squared()).max(0.0).sqrt())
+            (Vec3::new(d.x, d.y, (1.0 - d.length_squared()).max(0.0).sqrt()), true)
+        } else if self.microfacet_choice(mask) {
+            // u_lobe, uniform over the two microfacet strategies' shares, picks the branch.
+            let t = if u_lobe < p[0] { u_lobe } else { u_lobe - p[1] } / (p[0] + p[2]);
+            let h = ggx::sample_visible(wo, self.alpha, u);
+            if t < self.reflect_share(wo.dot(h), inside) {
+                (super::reflect(-wo, h), true)
+            } else {
+                (super::refract(-wo, h, 1.0 / self.eta(inside))?, false)
+            }
+        } else if u_lobe < p[0] {
+            let h = ggx::sample_visible(wo, self.alpha, u);
+            (super::reflect(-wo, h), true)
         } else if p[2] > 0.0 {
             let h = ggx::sample_visible(wo, self.alpha, u);
-            super::refract(-wo, h, 1.0 / self.eta(inside))?
+            (super::refract(-wo, h, 1.0 / self.eta(inside))?, false)
         } else {
             return None;
         };
         // A microfacet can send a reflection below the surface or a refraction above it:
         // those are not the lobe's directions (the pdf counts each lobe on its own side).
-        let reflected = u_lobe < p[0] + p[1];
         if reflected != (wi.z > 0.0) {
             return None;
         }
