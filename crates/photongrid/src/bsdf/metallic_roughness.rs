@@ -125,9 +125,9 @@ impl Lobes {
     /// Dielectric Fresnel at the microfacet cosine `cos` (on the `wo` side). Opaque: Schlick's,
     /// as the glTF specification writes it. Transmissive: the exact unpolarised reflectance
     /// (1 on total internal reflection), tinted by the specular colour (`f0` over the IOR's
-    /// own), as the smooth glass and as Cycles' Principled glass: Schlick's with the outside
-    /// angle passes up to 2 % more of a rough slab's light at 57° and made roughness 0.05 pass
-    /// more than the smooth glass (bench/materials/README.md, "The light through the slab").
+    /// own), as the smooth glass and as Cycles' Principled glass: with Schlick's, a slab of
+    /// roughness 0.05 passed more light than the smooth one (bench/materials/README.md, "The
+    /// light through the slab").
     pub fn fresnel_dielectric(&self, cos: f32, inside: bool) -> Rgb {
         if self.transmission <= 0.0 {
             return schlick(self.f0, cos);
@@ -234,8 +234,8 @@ impl Lobes {
     /// Whether reflection and transmission are sampled as one microfacet strategy: a visible
     /// normal first, then reflected or refracted by its own Fresnel ([`Lobes::reflect_share`]).
     /// Choosing by the macro surface's Fresnel instead gave fireflies inside rough glass, where
-    /// a microfacet tilted past the critical angle reflects totally while the macro surface
-    /// reflects 8 %.
+    /// a microfacet tilted past the critical angle reflects totally while the macro surface's
+    /// Fresnel is small.
     fn microfacet_choice(&self, mask: LobeMask) -> bool {
         let p = self.present();
         mask.reflection && mask.transmission && p.reflection && p.transmission
