@@ -563,7 +563,7 @@ fn describe_gltf(g: &MetallicRoughness) -> String {
     }
     if g.transmission > 0.0 || g.transmission_texture.is_some() {
         s += &format!(
-            ", transmission {} (rough dielectric, Walter et al. 2007)",
+            ", transmission {} (rough dielectric, Walter et al. 2007, with the exact Fresnel)",
             g.transmission
         );
     }
