@@ -578,3 +578,31 @@ fn a_smooth_glass_slab_lets_through_what_fresnel_says() {
     eprintln!("slab transmittance {got:.4}, Fresnel {want:.4}");
     assert!((got / want - 1.0).abs() < 0.015, "{got} vs {want}");
 }
+
+#[test]
+fn caustic_paths_that_miss_the_glass_are_counted() {
+    // A point light 1 m above a 1 m glass square: the caustic pass aims at the square's
+    // bounding sphere, so the share of its paths whose first hit is not the glass is one
+    // minus the square's solid angle over the sphere's cone.
+    let dir = TempDir::new("caustic_missed");
+    let path = plane_scene(&dir, Material::lambert(0.5), Some(Material::glass(None)));
+    let scene = photongrid::load(&path).unwrap_or_else(|e| panic!("{e}"));
+    let accel = photongrid::accel::Accel::for_scene(&scene);
+    let trace = photongrid::photon::TraceSettings {
+        photons: 1000,
+        max_depth: 8,
+        store_direct: false,
+        seed: 3,
+        record_triangles: false,
+        caustic_photons: 200_000,
+    };
+    let (_, _, stats) = photongrid::photon::trace_photons(&scene, &accel, &trace, &|_| {});
+    let (a, h) = (0.5f64, LIGHT_H - 1.0);
+    let square = 4.0 * (a * a / (a * a + h * h)).asin();
+    let sin = a * 2f64.sqrt() / h;
+    let cone = 2.0 * PI * (1.0 - (1.0 - sin * sin).sqrt());
+    let missed = stats.caustic_missed as f64 / stats.caustic_emitted as f64;
+    eprintln!("missed {missed}, expected {}", 1.0 - square / cone);
+    assert_eq!(stats.caustic_targets, 1);
+    assert!((missed - (1.0 - square / cone)).abs() < 0.01, "{missed}");
+}

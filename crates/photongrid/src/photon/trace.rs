@@ -158,6 +158,9 @@ pub struct PhotonStats {
     pub caustic_emitted: usize,
     /// Specular objects the caustic pass aimed at.
     pub caustic_targets: usize,
+    /// Caustic-pass paths whose first hit was not a mirror or glass (aimed past them, or
+    /// blocked): the aim's waste.
+    pub caustic_missed: usize,
     /// Stored direct photons.
     pub direct: usize,
     /// Stored caustic photons.
@@ -187,6 +190,7 @@ impl PhotonStats {
         self.stored += o.stored;
         self.caustic_emitted += o.caustic_emitted;
         self.caustic_targets = self.caustic_targets.max(o.caustic_targets);
+        self.caustic_missed += o.caustic_missed;
         self.direct += o.direct;
         self.caustic += o.caustic;
         self.indirect += o.indirect;
@@ -384,10 +388,15 @@ fn trace_path(
     for depth in 1..=settings.max_depth {
         out.rays += 1;
         let Some(hit) = accel.closest_hit(origin, dir, f32::INFINITY) else {
+            out.kinds.caustic_missed += usize::from(depth == 1 && pass == PassKind::Caustic);
             return;
         };
         let sp = SurfacePoint::new(scene, origin, dir, hit);
-        match &scene.materials[sp.material as usize].surface {
+        let material = &scene.materials[sp.material as usize];
+        if depth == 1 && pass == PassKind::Caustic && !material.is_specular() {
+            out.kinds.caustic_missed += 1;
+        }
+        match &material.surface {
             Surface::Lambert { .. } => {
                 let albedo = sp.albedo(scene);
                 if albedo.max_element() <= 0.0 {
