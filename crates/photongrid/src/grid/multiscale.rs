@@ -976,18 +976,6 @@ pub struct Probes<'a> {
     pub clearance: &'a (dyn Fn(Vec3, Vec3, &dyn Fn(Vec3) -> bool) -> f32 + Sync),
 }
 
-/// What a layer's kernels are stopped by ([`set_clearance`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Obstacles {
-    /// Every surface in front of the plane: indirect light changes next to anything nearby.
-    All,
-    /// Surfaces the plane runs on behind (a wall standing on a floor that continues past
-    /// it, a box on the floor) or overhead: direct light is the same up to a wall where the
-    /// plane ends (a room's corner), and kernels cut there by the plane's edge lose nothing,
-    /// while stopping them at the wall left them few photons (docs/multiscale.md, "Clearance").
-    Standing,
-}
-
 /// Whether `plane` has surface (`cells` with area) behind the point `hit` seen from `p`
 /// within `reach` (m) of `p`: along the in-plane direction from `p` to `hit`'s foot, from one
 /// cell past the foot (the foot's own cell is partly covered). A hit overhead (its foot
@@ -1017,9 +1005,16 @@ fn stands_on_plane(plane: &Plane, cells: &[Texel], p: Vec3, hit: Vec3, reach: f3
 const CLEARANCE_BLOCK: usize = 4;
 
 /// The open space in front of each covered cell of `plane` (`Texel::clearance`) up to the
-/// `obstacles` its layer is stopped by, probed once per block of [`CLEARANCE_BLOCK`]² cells
-/// at the centroid of its covered cells' centres.
-fn set_clearance(plane: &Plane, cells: &mut [Texel], probes: &Probes<'_>, obstacles: Obstacles, reach: f32) {
+/// surfaces the plane runs on behind (a wall standing on a floor that continues past it, a
+/// shelf board standing out of a wall, a box on the floor) or overhead, probed once per block
+/// of [`CLEARANCE_BLOCK`]² cells at the centroid of its covered cells' centres. Light changes
+/// across such an obstacle, and a kernel spanning it averages both sides (the wall under each
+/// shelf board of shelf_objects read 25 % dark). A wall where the plane
+/// ends (a room's corner) does not count: a kernel cut there by the plane's edge divides by its
+/// covered area and its local-linear fit follows the light's slope towards the corner, while
+/// stopping it at the wall left it few photons, a grainy band of final gathering along the foot
+/// of every wall (docs/multiscale.md, "Clearance").
+fn set_clearance(plane: &Plane, cells: &mut [Texel], probes: &Probes<'_>, reach: f32) {
     let (w, h) = (plane.res_u, plane.res_v);
     let (bw, bh) = (w.div_ceil(CLEARANCE_BLOCK), h.div_ceil(CLEARANCE_BLOCK));
     let cells_of = |b: usize| {
@@ -1041,12 +1036,7 @@ fn set_clearance(plane: &Plane, cells: &mut [Texel], probes: &Probes<'_>, obstac
                 return 0.0;
             }
             let p = plane.grid_to_world(sum.0 / n, sum.1 / n);
-            match obstacles {
-                Obstacles::All => (probes.clearance)(p, plane.normal, &|_| true),
-                Obstacles::Standing => {
-                    (probes.clearance)(p, plane.normal, &|hit| stands_on_plane(plane, covered, p, hit, reach))
-                }
-            }
+            (probes.clearance)(p, plane.normal, &|hit| stands_on_plane(plane, covered, p, hit, reach))
         })
         .collect();
     for (b, &c) in probed.iter().enumerate() {
@@ -1145,14 +1135,11 @@ impl MultiscaleGrids {
                             *a = Texel::default();
                         }
                     });
-                    // Global light changes next to what stands on or near the plane (a
-                    // wall standing on a floor that runs on behind it, a box's shadow), so
-                    // its kernels stop at the open space in front; caustics choose their
-                    // scale from their own sharp structure.
-                    match l {
-                        CAUSTIC => {}
-                        DIRECT => set_clearance(&plane, &mut area, probes, Obstacles::Standing, params.max_radius),
-                        _ => set_clearance(&plane, &mut area, probes, Obstacles::All, params.max_radius),
+                    // Global light changes next to what stands on the plane, so its
+                    // kernels stop at the open space in front; caustics choose their scale
+                    // from their own sharp structure.
+                    if l != CAUSTIC {
+                        set_clearance(&plane, &mut area, probes, params.max_radius);
                     }
                     LayerTexture::new(plane, sizing, area, Edges::of_layer(l))
                 })
@@ -1975,7 +1962,7 @@ mod tests {
     }
 
     #[test]
-    fn direct_kernels_stop_at_a_wall_the_plane_runs_on_behind_but_not_at_one_where_it_ends() {
+    fn global_kernels_stop_at_a_wall_the_plane_runs_on_behind_but_not_at_one_where_it_ends() {
         // A wall across x = `wall`, met by the 45° probe leaning towards it at the height of
         // the point's distance from it (the square's normal is +y).
         let clearance_at = |wall: f32, x: f32, layer: usize| {
@@ -2012,10 +1999,12 @@ mod tests {
                 "layer {layer}: clearance {c} before a wall standing on the plane"
             );
         }
-        // A wall at the floor's edge (a room's corner): indirect light still stops, direct
-        // light, the same up to the wall, does not.
-        assert!(clearance_at(2.0, 1.9, INDIRECT) < 1.0);
-        assert_eq!(clearance_at(2.0, 1.9, DIRECT), f32::INFINITY);
+        // A wall at the floor's edge (a room's corner): kernels cut by the edge divide by
+        // their covered area, so neither layer stops there.
+        for layer in [DIRECT, INDIRECT, TAIL] {
+            assert_eq!(clearance_at(2.0, 1.9, layer), f32::INFINITY, "layer {layer}");
+        }
+        assert!(clearance_at(1.1, 0.9, TAIL) < 1.0);
     }
 
     #[test]
