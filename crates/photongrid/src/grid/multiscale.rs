@@ -1009,11 +1009,11 @@ const CLEARANCE_BLOCK: usize = 4;
 /// shelf board standing out of a wall, a box on the floor) or overhead, probed once per block
 /// of [`CLEARANCE_BLOCK`]² cells at the centroid of its covered cells' centres. Light changes
 /// across such an obstacle, and a kernel spanning it averages both sides (the wall under each
-/// shelf board of shelf_objects read 25 % dark). A wall where the plane
-/// ends (a room's corner) does not count: a kernel cut there by the plane's edge divides by its
-/// covered area and its local-linear fit follows the light's slope towards the corner, while
-/// stopping it at the wall left it few photons, a grainy band of final gathering along the foot
-/// of every wall (docs/multiscale.md, "Clearance").
+/// shelf board of shelf_objects read 25 % dark). A wall where the plane ends (a room's corner)
+/// does not count: a kernel cut there by the plane's edge divides by its covered area and its
+/// local-linear fit follows the light's slope towards the corner, while stopping it at the wall
+/// left it few photons, a grainy band of final gathering along the foot of every wall
+/// (docs/multiscale.md, "Walls where the plane ends").
 fn set_clearance(plane: &Plane, cells: &mut [Texel], probes: &Probes<'_>, reach: f32) {
     let (w, h) = (plane.res_u, plane.res_v);
     let (bw, bh) = (w.div_ceil(CLEARANCE_BLOCK), h.div_ceil(CLEARANCE_BLOCK));
