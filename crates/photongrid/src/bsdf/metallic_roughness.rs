@@ -287,7 +287,12 @@ impl Lobes {
         if wo.z <= 0.0 || wi.z == 0.0 {
             return 0.0;
         }
-        let p = self.strategies(wo, inside, mask);
+        self.pdf_of_strategies(wo, wi, inside, mask, self.strategies(wo, inside, mask))
+    }
+
+    /// [`Lobes::pdf`] for the strategies' probabilities `p` from `wo` ([`Lobes::strategies`]),
+    /// which [`Lobes::sample`] has already computed; `wo.z > 0`, `wi.z ≠ 0`.
+    fn pdf_of_strategies(&self, wo: Vec3, wi: Vec3, inside: bool, mask: LobeMask, p: [f32; 3]) -> f32 {
         let merged = self.microfacet_choice(mask);
         if wi.z > 0.0 {
             let mut pdf = 0.0;
@@ -363,7 +368,10 @@ impl Lobes {
         if reflected != (wi.z > 0.0) {
             return None;
         }
-        let pdf = self.pdf(wo, wi, inside, mask);
+        if wi.z == 0.0 {
+            return None;
+        }
+        let pdf = self.pdf_of_strategies(wo, wi, inside, mask, p);
         if !(pdf > 0.0) || !pdf.is_finite() {
             return None;
         }
