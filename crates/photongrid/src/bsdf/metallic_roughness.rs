@@ -365,10 +365,7 @@ impl Lobes {
         };
         // A microfacet can send a reflection below the surface or a refraction above it:
         // those are not the lobe's directions (the pdf counts each lobe on its own side).
-        if reflected != (wi.z > 0.0) {
-            return None;
-        }
-        if wi.z == 0.0 {
+        if wi.z == 0.0 || reflected != (wi.z > 0.0) {
             return None;
         }
         let pdf = self.pdf_of_strategies(wo, wi, inside, mask, p);

@@ -436,13 +436,12 @@ impl MultiscaleGrids {
     }
 
     /// The scales of `t` at `p` that [`interior_estimate`](Self::interior_estimate) chooses
-    /// among.
+    /// among: [`scales_within`](Self::scales_within) that lie (almost) wholly on the plane,
+    /// the finest too within the clearance.
     fn interior_scales<'t>(&self, t: &'t LayerTexture, p: Vec3) -> impl Iterator<Item = ScaleEstimate> + 't {
-        let max_radius = self.max_radius;
-        t.scales(p)
-            .take_while(move |s| s.level == 0 || t.kernel_reach(s.level) <= max_radius)
-            .take_while(|s| s.texel.area >= INTERIOR_COVERAGE * t.kernel_area(s.level))
-            .take_while(|s| t.kernel_reach(s.level) <= s.texel.clearance)
+        self.scales_within(t, p).take_while(|s| {
+            s.texel.area >= INTERIOR_COVERAGE * t.kernel_area(s.level) && t.kernel_reach(s.level) <= s.texel.clearance
+        })
     }
 
     /// A global layer's estimate less its kernel's curvature bias ([`curvature_bias`]), the
