@@ -19,7 +19,7 @@
 
 use anyhow::{Context, Result};
 use glam::Vec3;
-use photongrid::accel::{Accel, ClosestHit, Hit};
+use photongrid::accel::{Accel, ClosestHit, Hit, Origin};
 use photongrid::estimate::PhotonMap;
 use photongrid::photon::{trace_photons, TraceSettings};
 use photongrid::pipeline::{self, RenderRequest};
@@ -137,7 +137,7 @@ pub struct SceneThroughput {
 /// A recorded ray: origin, unit direction, and the distance to what it hit (∞ for a miss).
 #[derive(Clone, Copy, Debug)]
 struct WalkRay {
-    origin: Vec3,
+    origin: Origin,
     dir: Vec3,
     t: f32,
 }
@@ -149,11 +149,11 @@ struct RayRecorder<'a> {
 }
 
 impl ClosestHit for RayRecorder<'_> {
-    fn closest_hit(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit> {
-        let hit = self.accel.intersect(origin, dir, tmax);
+    fn closest_hit(&self, origin: Origin, dir: Vec3, tmax: f32) -> Option<Hit> {
+        let hit = self.accel.intersect_from(origin, dir, tmax);
         if let Ok(mut rays) = self.rays.lock() {
             rays.push(WalkRay {
-                origin,
+                origin: origin.into(),
                 dir,
                 t: hit.map_or(f32::INFINITY, |h| h.t),
             });
@@ -210,7 +210,7 @@ fn record_walks(scene: &Scene, accel: &Accel, n: usize, seed: u64) -> (Vec<WalkR
         for _ in 0..WALK_DEPTH {
             let hit = accel.intersect(origin, dir, f32::INFINITY);
             rays.push(WalkRay {
-                origin,
+                origin: origin.into(),
                 dir,
                 t: hit.map_or(f32::INFINITY, |h| h.t),
             });
@@ -323,13 +323,13 @@ pub fn measure(path: &Path, opts: &ThroughputOptions) -> Result<SceneThroughput>
     photon_rays.truncate(opts.rays);
     let closest_hit = rate(&photon_rays, |r| {
         accel
-            .intersect(r.origin, r.dir, f32::INFINITY)
+            .intersect_from(r.origin, r.dir, f32::INFINITY)
             .map_or(0, |h| h.triangle)
     });
     // Shadow rays over the first half of each segment: they traverse like a visible light
     // sample's (nothing blocks them), the camera pass's common case.
     let segments: Vec<&WalkRay> = rays.iter().filter(|r| r.t.is_finite()).collect();
-    let shadow = rate(&segments, |r| accel.occluded(r.origin, r.dir, 0.5 * r.t) as u32);
+    let shadow = rate(&segments, |r| accel.occluded(r.origin.point, r.dir, 0.5 * r.t) as u32);
     let (knn, indexed) = knn_rate(&scene, &accel, &sites, opts);
     let render = render_rates(&scene, opts)?;
     let photon_pass_ratio = if closest_hit.per_thread_all > 0.0 {
@@ -409,7 +409,7 @@ mod tests {
         let hits: Vec<Vec3> = rays
             .iter()
             .filter(|r| r.t.is_finite())
-            .map(|r| r.origin + r.dir * r.t)
+            .map(|r| r.origin.point + r.dir * r.t)
             .collect();
         assert!(
             hits.len() >= photons.len() && photons.len() > paths / 2,

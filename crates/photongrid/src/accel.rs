@@ -7,6 +7,7 @@ use obvhs::cwbvh::CwBvh;
 use obvhs::ray::{Ray, RayHit};
 use obvhs::rt_triangle::RtTriangle;
 use obvhs::BvhBuildParams;
+use rayon::prelude::*;
 
 /// A ray–triangle hit.
 #[derive(Clone, Copy, Debug)]
@@ -17,17 +18,64 @@ pub struct Hit {
     pub triangle: u32,
 }
 
+/// Where a ray starts: a point off the surface it leaves, and which surface that is.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Origin {
+    /// The start point, offset to the side the ray leaves by.
+    pub point: Vec3,
+    /// The surface point left, where there is one ([`Leaving`]).
+    pub leaving: Option<Leaving>,
+}
+
+/// The surface point a ray leaves.
+///
+/// Offset off the face, a ray leaving the base of a glass standing on a table would start
+/// inside the table and miss its top (the light through the base was lost, and the table seen
+/// through it was dark: a cone on a shelf showed a dark cross); and light the table reflects
+/// under the glass would start inside the glass, never entering it through its base. Where a
+/// glass and another surface rest against each other ([`Accel::for_scene`] finds those
+/// faces), a ray leaving either by its front (towards the other) is searched instead from
+/// [`CONTACT_LEAD`] before its point, hits nothing of the face's own material within that
+/// distance of the point (the face, and its neighbours where it leaves near an edge), and
+/// finds the other. Elsewhere the offset start is kept: starting before the face tests the
+/// face's own BVH leaf, a cost every glass crossing would pay (docs/materials.md).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Leaving {
+    /// The scene triangle left.
+    pub triangle: u32,
+    /// Its material.
+    pub material: u32,
+    /// The point left, on the triangle.
+    pub at: Vec3,
+}
+
+/// How far before its point a ray leaving a face in contact ([`Leaving`]) is searched, in the
+/// BVH's units (the scene's diagonal brought into [4, 8)): four times the distance within
+/// which obvhs culls a node along a ray, so a flat box (a table's top) at the point is not
+/// culled.
+pub const CONTACT_LEAD: f32 = 4e-4;
+
+/// Distance, in offsets off a surface ([`crate::surface::offset_eps`]), within which a surface
+/// facing a glass face in the same plane rests against it.
+const RESTING_OFFSETS: f32 = 4.0;
+
+impl From<Vec3> for Origin {
+    fn from(point: Vec3) -> Self {
+        Origin { point, leaving: None }
+    }
+}
+
 /// Closest-hit queries, all the photon tracer asks of the scene's geometry. [`Accel`] answers
 /// them; `photongrid throughput` wraps it to record the photon pass's own rays.
 pub trait ClosestHit: Sync {
     /// Closest hit along `origin + t·dir`, `t` in (0, tmax).
-    fn closest_hit(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit>;
+    fn closest_hit(&self, origin: Origin, dir: Vec3, tmax: f32) -> Option<Hit>;
 }
 
 impl ClosestHit for Accel {
     #[inline]
-    fn closest_hit(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit> {
-        self.intersect(origin, dir, tmax)
+    fn closest_hit(&self, origin: Origin, dir: Vec3, tmax: f32) -> Option<Hit> {
+        self.intersect_from(origin, dir, tmax)
     }
 }
 
@@ -45,6 +93,11 @@ pub struct Accel {
     scale: f32,
     /// Alpha coverage of the triangles whose material has alpha (None: every triangle opaque).
     coverage: Option<Coverage>,
+    /// Per entry of `tris`: its material ([`Leaving`]). Empty when built without materials.
+    material: Vec<u32>,
+    /// Per scene triangle: a glass face and another surface resting against each other
+    /// ([`Leaving`]). Empty when built without materials.
+    contact: Vec<bool>,
 }
 
 /// The triangles with alpha, tested inside traversal: a hit where a MASK material's alpha is
@@ -153,6 +206,47 @@ fn unit_scale(d: f32) -> f32 {
     2f32.powi((2 - e).clamp(-120, 120))
 }
 
+/// Per scene triangle: whether it is a glass face that another surface rests against, or such
+/// a surface — one of another material facing the glass face, in its plane within
+/// [`RESTING_OFFSETS`] offsets, their boxes overlapping (a glass's base and the table's top).
+fn contact_faces(scene: &Scene, accel: &Accel) -> Vec<bool> {
+    let diagonal = scene.bounds.diagonal();
+    let pairs: Vec<(usize, Vec<u32>)> = (0..scene.triangles.len())
+        .into_par_iter()
+        .filter_map(|i| {
+            let t = &scene.triangles[i];
+            let n = t.cross().normalize_or_zero();
+            if !scene.materials[t.material as usize].transmits() || n == Vec3::ZERO {
+                return None;
+            }
+            let magnitude = t.p.iter().fold(0.0f32, |m, p| m.max(p.abs().max_element()));
+            let near = RESTING_OFFSETS * crate::surface::offset_eps(magnitude, diagonal);
+            let lo = t.p[0].min(t.p[1]).min(t.p[2]) - near;
+            let hi = t.p[0].max(t.p[1]).max(t.p[2]) + near;
+            let mut partners = Vec::new();
+            accel.for_each_near(lo, hi, |j| {
+                let o = &scene.triangles[j as usize];
+                if o.material != t.material
+                    && o.cross().normalize_or_zero().dot(n) < -0.999
+                    && o.p.iter().any(|p| (*p - t.p[0]).dot(n).abs() <= near)
+                    && t.p.iter().all(|p| (*p - o.p[0]).dot(n).abs() <= near)
+                {
+                    partners.push(j);
+                }
+            });
+            (!partners.is_empty()).then_some((i, partners))
+        })
+        .collect();
+    let mut contact = vec![false; scene.triangles.len()];
+    for (i, partners) in pairs {
+        contact[i] = true;
+        for j in partners {
+            contact[j as usize] = true;
+        }
+    }
+    contact
+}
+
 impl Accel {
     /// Build the BVH over the scene triangles.
     pub fn build(triangles: &[Triangle]) -> Self {
@@ -182,14 +276,25 @@ impl Accel {
             original,
             scale,
             coverage: None,
+            material: Vec::new(),
+            contact: Vec::new(),
         }
     }
 
     /// Build the BVH over the scene's triangles, with alpha coverage where materials have alpha.
     pub fn for_scene(scene: &Scene) -> Self {
+        let accel = Accel::build(&scene.triangles);
+        let material = accel
+            .original
+            .iter()
+            .map(|&i| scene.triangles[i as usize].material)
+            .collect();
+        let contact = contact_faces(scene, &accel);
         Accel {
             coverage: Coverage::of(scene),
-            ..Accel::build(&scene.triangles)
+            material,
+            contact,
+            ..accel
         }
     }
 
@@ -225,6 +330,36 @@ impl Accel {
         }
     }
 
+    /// Closest hit along `origin.point + t·dir`, `t` in (0, tmax); for a ray leaving a face in
+    /// contact, searched from before the face ([`Leaving`]).
+    pub fn intersect_from(&self, origin: Origin, dir: Vec3, tmax: f32) -> Option<Hit> {
+        let l = match origin.leaving {
+            Some(l) if self.contact.get(l.triangle as usize).copied().unwrap_or(false) => l,
+            _ => return self.intersect(origin.point, dir, tmax),
+        };
+        let lead = CONTACT_LEAD / self.scale;
+        let ray = self.ray(l.at - dir * lead, dir, tmax + lead);
+        let mut hit = RayHit::none();
+        let test = |r: &Ray, id: usize| {
+            let t = self.test(r, id);
+            if t < 2.0 * CONTACT_LEAD && self.material[id] == l.material {
+                f32::INFINITY
+            } else {
+                t
+            }
+        };
+        if self.bvh.ray_traverse(ray, &mut hit, test) {
+            // Measured from `origin.point`, as every hit.
+            let before = lead + (l.at - origin.point).dot(dir);
+            Some(Hit {
+                t: (hit.t / self.scale - before).max(0.0),
+                triangle: self.original[hit.primitive_id as usize],
+            })
+        } else {
+            None
+        }
+    }
+
     /// True if anything blocks the segment from `origin` along `dir` up to `tmax`.
     pub fn occluded(&self, origin: Vec3, dir: Vec3, tmax: f32) -> bool {
         let ray = self.ray(origin, dir, tmax);
@@ -253,11 +388,19 @@ impl Accel {
         )
     }
 
+    /// The faces in contact ([`Leaving`]), per scene triangle.
+    #[cfg(test)]
+    pub(crate) fn contact(&self) -> &[bool] {
+        &self.contact
+    }
+
     /// Approximate heap memory in bytes.
     pub fn memory_bytes(&self) -> usize {
         self.bvh.nodes.len() * std::mem::size_of::<obvhs::cwbvh::node::CwBvhNode>()
             + self.tris.len() * std::mem::size_of::<RtTriangle>()
             + self.original.len() * 8
+            + self.material.len() * 4
+            + self.contact.len()
     }
 }
 

@@ -993,9 +993,10 @@ fn clearance(
         .fold(f32::INFINITY, f32::min)
 }
 
-/// Whether a point of a surface with front normal `n` lies inside a closed solid resting on
-/// its front (under a box on the floor): the first surface met along the normal and along
-/// both in-plane axes is hit from its back. (Only the front: every face of a solid has the
+/// Whether a point of a surface with front normal `n` lies inside a closed opaque solid
+/// resting on its front (under a box on the floor): the first surface met along the normal and
+/// along both in-plane axes is hit from its back, and is not glass (light reaches the table
+/// under a glass through it, and is seen through it). (Only the front: every face of a solid has the
 /// solid itself behind it.) Directions lean slightly off the axes (a ray through the shared
 /// edge of two triangles, where cell centres often lie, can slip between them) and towards
 /// the front (so they do not cross the surface).
@@ -1006,9 +1007,10 @@ fn inside_solid(scene: &Scene, accel: &Accel, p: glam::Vec3, n: glam::Vec3) -> b
         let o = p + side * eps;
         let exits = |d: glam::Vec3| {
             let d = (d + 0.013 * side + 0.007 * u + 0.003 * v).normalize();
-            accel
-                .intersect(o, d, f32::INFINITY)
-                .is_some_and(|hit| d.dot(scene.triangles[hit.triangle as usize].cross()) > 0.0)
+            accel.intersect(o, d, f32::INFINITY).is_some_and(|hit| {
+                let t = &scene.triangles[hit.triangle as usize];
+                d.dot(t.cross()) > 0.0 && !scene.materials[t.material as usize].transmits()
+            })
         };
         [side, u, -u, v, -v].iter().all(|&d| exits(d))
     })

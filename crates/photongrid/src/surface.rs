@@ -1,7 +1,7 @@
 //! What a ray hit: position, normals oriented to the side the ray came from, texture
 //! coordinates, and the material's albedo there.
 
-use crate::accel::Hit;
+use crate::accel::{Hit, Leaving, Origin};
 use crate::scene::{Scene, Surface};
 use crate::Rgb;
 use glam::{Vec2, Vec3, Vec4};
@@ -152,6 +152,21 @@ impl SurfacePoint {
         self.position + n * self.eps
     }
 
+    /// Where a ray leaving this point along `dir` starts: offset to the side it leaves by
+    /// ([`offset`](Self::offset)), and for a ray leaving by the front of the face (where a
+    /// surface resting against it lies: under a glass's base, above a table's top), the point
+    /// it leaves, so that such a surface is hit, not started inside ([`Leaving`]).
+    pub fn leave(&self, dir: Vec3) -> Origin {
+        Origin {
+            point: self.offset(dir),
+            leaving: (dir.dot(self.geometric_normal) > 0.0).then_some(Leaving {
+                triangle: self.triangle,
+                material: self.material,
+                at: self.position,
+            }),
+        }
+    }
+
     /// The largest coordinate of this point in absolute value (for [`shadow_tmax`]).
     pub fn magnitude(&self) -> f32 {
         self.position.abs().max_element()
@@ -191,6 +206,186 @@ pub fn normal_mapped(n: Vec3, t: Vec4, c: Vec4, scale: f32) -> Vec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::accel::Accel;
+    use crate::scene::material::Material;
+    use crate::scene::{Bounds, Triangle};
+    use crate::test_util::test_rng;
+
+    /// The faces of the box `lo`–`hi` (wound outwards) in `material`.
+    fn cuboid(lo: Vec3, hi: Vec3, material: u32) -> Vec<Triangle> {
+        let c = |i: usize| {
+            Vec3::new(
+                if i & 1 == 0 { lo.x } else { hi.x },
+                if i & 2 == 0 { lo.y } else { hi.y },
+                if i & 4 == 0 { lo.z } else { hi.z },
+            )
+        };
+        let faces = [
+            [0, 2, 3, 1],
+            [4, 5, 7, 6],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+        ];
+        let centre = 0.5 * (lo + hi);
+        let mut out = Vec::new();
+        for f in faces {
+            for [a, b, d] in [[f[0], f[1], f[2]], [f[0], f[2], f[3]]] {
+                let (pa, pb, pd) = (c(a), c(b), c(d));
+                let n = (pb - pa).cross(pd - pa);
+                let (pb, pd) = if n.dot((pa + pb + pd) / 3.0 - centre) < 0.0 {
+                    (pd, pb)
+                } else {
+                    (pb, pd)
+                };
+                let n = (pb - pa).cross(pd - pa).normalize();
+                out.push(Triangle {
+                    p: [pa, pb, pd],
+                    n: [n; 3],
+                    uv: [Vec2::ZERO; 3],
+                    material,
+                });
+            }
+        }
+        out
+    }
+
+    /// The first of the glass cube's triangles in [`glass_on_table`].
+    const GLASS: u32 = 12;
+
+    /// A table (a Lambert box, top at y = 1) with a glass cube standing `gap` above it.
+    fn glass_on_table(gap: f32) -> Scene {
+        // The table's diagonals are not the glass's (a ray through both edges could slip
+        // between the triangles of either).
+        let mut triangles = cuboid(Vec3::new(-2.0, 0.0, -1.5), Vec3::new(2.5, 1.0, 2.0), 0);
+        triangles.extend(cuboid(
+            Vec3::new(-0.5, 1.0 + gap, -0.5),
+            Vec3::new(0.5, 2.0 + gap, 0.5),
+            1,
+        ));
+        let mut bounds = Bounds::empty();
+        triangles.iter().flat_map(|t| t.p).for_each(|p| bounds.grow(p));
+        let glass = Material {
+            surface: Surface::Dielectric {
+                ior: 1.5,
+                tint: Rgb::ONE,
+                absorption: None,
+            },
+            ..Material::plain()
+        };
+        Scene {
+            source: "glass_on_table.glb".into(),
+            triangles,
+            materials: vec![Material::plain(), glass],
+            textures: vec![],
+            tangents: vec![],
+            glossy_roughness: 0.0,
+            lights: vec![],
+            cameras: vec![],
+            bounds,
+            report: Default::default(),
+        }
+    }
+
+    /// Rays leaving the glass cube's base downwards, from points all over it (edges and the
+    /// diagonal included) and at angles down to grazing: where they start and which way.
+    fn exits(scene: &Scene, base: f32) -> Vec<(SurfacePoint, Vec3)> {
+        let glass = Accel::build(&scene.triangles[GLASS as usize..]);
+        let mut rng = test_rng(5);
+        (0..4000)
+            .filter_map(|i| {
+                let p = Vec3::new(rng.uniform() - 0.5, base, rng.uniform() - 0.5);
+                let p = if i % 4 == 0 { Vec3::new(p.x, base, p.x) } else { p }; // on the diagonal
+                let d = Vec3::new(rng.uniform() - 0.5, -(0.12 + rng.uniform()), rng.uniform() - 0.5).normalize();
+                // The ray inside the glass that reached p, from a point 1 mm before it. (Where
+                // the glass stands on the table, the table's top and the glass's base are hit
+                // at the same distance, and either may come first: the glass's is taken.)
+                let o = p - d * 1e-3;
+                if o.x.abs() >= 0.5 || o.z.abs() >= 0.5 {
+                    return None;
+                }
+                let mut hit = glass.intersect(o, d, 1.0)?;
+                hit.triangle += GLASS;
+                let tri = &scene.triangles[hit.triangle as usize];
+                (tri.cross().y < 0.0).then(|| (SurfacePoint::new(scene, o, d, hit), d))
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_ray_leaving_the_base_of_a_glass_hits_the_table_it_stands_on() {
+        let scene = glass_on_table(0.0);
+        let accel = Accel::for_scene(&scene);
+        // The glass's base (its two triangles facing down) and the table's top are in contact.
+        let contact: Vec<usize> = (0..scene.triangles.len()).filter(|&i| accel.contact()[i]).collect();
+        assert_eq!(contact.len(), 4);
+        assert!(contact
+            .iter()
+            .all(|&i| (scene.triangles[i].cross().y < 0.0) == (i >= GLASS as usize)));
+        let exits = exits(&scene, 1.0);
+        assert!(exits.len() > 1000, "{}", exits.len());
+        let mut tops = 0;
+        for (sp, d) in &exits {
+            let o = sp.leave(*d);
+            let hit = accel.intersect_from(o, *d, f32::INFINITY).expect("the table");
+            let t = &scene.triangles[hit.triangle as usize];
+            assert!(t.material == 0 && t.cross().y > 0.0, "{t:?} from {sp:?}");
+            assert!(
+                (o.point + *d * hit.t - sp.position).length() < 4.0 * sp.eps,
+                "{}",
+                hit.t
+            );
+            // Offset past the face, the ray starts inside the table and misses its top.
+            let o = sp.offset(*d);
+            let past = accel.intersect(o, *d, f32::INFINITY);
+            tops += usize::from(past.is_some_and(|h| (o + *d * h.t).y > 0.999));
+        }
+        assert_eq!(tops, 0);
+    }
+
+    #[test]
+    fn light_the_table_reflects_under_a_glass_enters_the_glass_through_its_base() {
+        let scene = glass_on_table(0.0);
+        let accel = Accel::for_scene(&scene);
+        let table = Accel::build(&scene.triangles[..GLASS as usize]);
+        let mut rng = test_rng(6);
+        let (mut entered, mut offset_entered) = (0, 0);
+        for _ in 0..2000 {
+            let p = Vec3::new(0.98 * (rng.uniform() - 0.5), 1.0, 0.98 * (rng.uniform() - 0.5));
+            // A ray from above, inside the glass, that reached the table's top at p.
+            let o = p + Vec3::Y * 1e-3;
+            let hit = table.intersect(o, -Vec3::Y, 1.0).expect("the table");
+            let sp = SurfacePoint::new(&scene, o, -Vec3::Y, hit);
+            let up = Vec3::new(rng.uniform() - 0.5, 0.2 + rng.uniform(), rng.uniform() - 0.5).normalize();
+            let is_base = |h: Option<Hit>| {
+                h.is_some_and(|h| h.triangle >= GLASS && scene.triangles[h.triangle as usize].cross().y < 0.0)
+            };
+            entered += usize::from(is_base(accel.intersect_from(sp.leave(up), up, f32::INFINITY)));
+            offset_entered += usize::from(is_base(accel.intersect(sp.offset(up), up, f32::INFINITY)));
+        }
+        // Every such ray enters through the base; offset off the table, none did.
+        assert_eq!((entered, offset_entered), (2000, 0));
+    }
+
+    #[test]
+    fn a_ray_leaving_a_glass_above_a_table_meets_no_glass_and_the_table_where_it_is() {
+        let gap = 0.01;
+        let scene = glass_on_table(gap);
+        let accel = Accel::for_scene(&scene);
+        assert!(accel.contact().iter().all(|c| !c));
+        for (sp, d) in exits(&scene, 1.0 + gap) {
+            let o = sp.leave(d);
+            let hit = accel.intersect_from(o, d, f32::INFINITY).expect("the table");
+            let t = &scene.triangles[hit.triangle as usize];
+            assert!(t.material == 0 && t.cross().y > 0.0, "{t:?} from {sp:?} along {d}");
+            let at = o.point + d * hit.t;
+            assert!(
+                (at - sp.position).length() > 0.9 * gap && (at.y - 1.0).abs() < 1e-5,
+                "{at}"
+            );
+        }
+    }
 
     #[test]
     fn flat_normal_map_keeps_the_normal_and_a_tilt_follows_the_tangent() {

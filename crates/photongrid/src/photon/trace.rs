@@ -3,7 +3,7 @@
 
 use super::caustic::SpecularTargets;
 use super::store::{Photon, PhotonKind};
-use crate::accel::ClosestHit;
+use crate::accel::{ClosestHit, Origin};
 use crate::bsdf;
 use crate::sampling::{self, stream, Rng};
 use crate::scene::light::LightSampler;
@@ -91,7 +91,7 @@ fn run_pass(
             let mut rng = Rng::keyed(settings.seed, pass.stream, i as u64);
             if let Some((e, p_light)) = emit(&mut rng) {
                 let power = e.flux / (p_light * n as f32);
-                let ray = (e.origin, e.direction, power);
+                let ray = (e.origin.into(), e.direction, power);
                 trace_path(scene, accel, settings, pass.kind, ray, &mut rng, &mut out);
             }
         }
@@ -349,7 +349,7 @@ fn gltf_step(
     (power, kind): (Rgb, PhotonKind),
     rng: &mut Rng,
     out: &mut Out,
-) -> Option<(Vec3, Vec3, Rgb, PhotonKind)> {
+) -> Option<(Origin, Vec3, Rgb, PhotonKind)> {
     let (stored, s) = bsdf::gltf_photon_step(scene, m, dir, sp, distance, rng);
     if stored && pass.stores(kind, settings.store_direct) {
         out.store(sp, dir, power, kind, depth, rng);
@@ -371,7 +371,7 @@ fn gltf_step(
         (true, k) => k,
         (false, _) => PhotonKind::Indirect,
     };
-    Some((sp.offset(s.direction), s.direction, power * (s.weight / q * c), kind))
+    Some((sp.leave(s.direction), s.direction, power * (s.weight / q * c), kind))
 }
 
 /// Follow one photon path from `origin` along `dir` with `power`, storing its photons in `out`.
@@ -380,7 +380,7 @@ fn trace_path(
     accel: &impl ClosestHit,
     settings: &TraceSettings,
     pass: PassKind,
-    (mut origin, mut dir, mut power): (Vec3, Vec3, Rgb),
+    (mut origin, mut dir, mut power): (Origin, Vec3, Rgb),
     rng: &mut Rng,
     out: &mut Out,
 ) {
@@ -391,7 +391,7 @@ fn trace_path(
             out.kinds.caustic_missed += usize::from(depth == 1 && pass == PassKind::Caustic);
             return;
         };
-        let sp = SurfacePoint::new(scene, origin, dir, hit);
+        let sp = SurfacePoint::new(scene, origin.point, dir, hit);
         let material = &scene.materials[sp.material as usize];
         if depth == 1 && pass == PassKind::Caustic && !material.is_specular() {
             out.kinds.caustic_missed += 1;
@@ -419,7 +419,7 @@ fn trace_path(
                 if dir.dot(sp.facing_normal) <= 0.0 {
                     return; // shading normal sent it below the surface
                 }
-                origin = sp.offset(dir);
+                origin = sp.leave(dir);
                 kind = PhotonKind::Indirect;
             }
             Surface::Gltf(m) => {
@@ -443,7 +443,7 @@ fn trace_path(
                 };
                 power *= w * c;
                 dir = s.direction;
-                origin = sp.offset(dir);
+                origin = sp.leave(dir);
                 if kind == PhotonKind::Direct {
                     kind = PhotonKind::Caustic;
                 }

@@ -69,7 +69,7 @@ impl Tracer<'_> {
         if !g.traced.is_empty() && depth < self.settings.max_specular_depth {
             if let Some(s) = g.sample(g.traced, rng.uniform(), rng.uniform2()) {
                 self.mis = Some(MisRay { pdf: s.pdf });
-                let li = self.radiance(sp.offset(s.direction), s.direction, depth + 1, rng, aov);
+                let li = self.radiance(sp.leave(s.direction), s.direction, depth + 1, rng, aov);
                 self.mis = None;
                 l += s.weight * li;
             }
@@ -246,7 +246,7 @@ impl Tracer<'_> {
             return Rgb::ZERO;
         }
         match g.sample(g.traced, rng.uniform(), rng.uniform2()) {
-            Some(s) => a * s.weight * self.gather_ray(sp.offset(s.direction), s.direction, depth + 1, rng),
+            Some(s) => a * s.weight * self.gather_ray(sp.leave(s.direction), s.direction, depth + 1, rng),
             None => Rgb::ZERO,
         }
     }

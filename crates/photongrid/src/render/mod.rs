@@ -1,7 +1,7 @@
 //! The camera pass: jittered camera rays, specular chains followed, and at diffuse points
 //! direct light by shadow rays plus indirect light and caustics from the photon map.
 
-use crate::accel::Accel;
+use crate::accel::{Accel, Origin};
 use crate::bsdf;
 use crate::estimate::bright::{Aim, BrightSample};
 use crate::estimate::density::{density_radiance, photon_density};
@@ -273,7 +273,7 @@ fn render_sweep(
                     let mut first = (s == 0).then_some(&mut aovs[x]);
                     let edge = edges.is_some_and(|e| e.contains(x, y));
                     tracer.skip_seen_emission = edge;
-                    row[x] = tracer.radiance(o, d, 0, &mut rng, &mut first);
+                    row[x] = tracer.radiance(o.into(), d, 0, &mut rng, &mut first);
                     if edge {
                         row[x] += emitter_edges::edge_emission(&pass, x, y, settings.first_sample.wrapping_add(s));
                     }
@@ -330,12 +330,12 @@ fn camera_ray(camera: &Camera, settings: &RenderSettings, x: usize, y: usize, s:
 }
 
 impl Tracer<'_> {
-    fn radiance(&mut self, o: Vec3, d: Vec3, depth: u32, rng: &mut Rng, aov: &mut Option<&mut Aov>) -> Rgb {
+    fn radiance(&mut self, o: Origin, d: Vec3, depth: u32, rng: &mut Rng, aov: &mut Option<&mut Aov>) -> Rgb {
         let mis = self.mis.take();
-        let Some(hit) = self.accel.intersect(o, d, f32::INFINITY) else {
+        let Some(hit) = self.accel.intersect_from(o, d, f32::INFINITY) else {
             return Rgb::ZERO; // black world, as the reference scenes
         };
-        let sp = SurfacePoint::new(self.scene, o, d, hit);
+        let sp = SurfacePoint::new(self.scene, o.point, d, hit);
         let material = &self.scene.materials[sp.material as usize];
         if depth == 0 {
             first_hit_aov(aov, &sp, hit.t);
@@ -359,7 +359,7 @@ impl Tracer<'_> {
             return l;
         }
         let next = |tr: &mut Self, s: bsdf::Scatter, rng: &mut Rng, aov: &mut Option<&mut Aov>| {
-            s.weight * tr.radiance(sp.offset(s.direction), s.direction, depth + 1, rng, aov)
+            s.weight * tr.radiance(sp.leave(s.direction), s.direction, depth + 1, rng, aov)
         };
         if depth < self.settings.split_depth {
             // Near the camera both glass branches are followed: less noise where it shows most.
@@ -435,7 +435,7 @@ impl Tracer<'_> {
                 continue;
             };
             let (l, pdf_aimed) =
-                self.gather_ray_first(sp.offset(s.direction), s.direction, (aimed > 0).then_some(&aim), rng);
+                self.gather_ray_first(sp.leave(s.direction), s.direction, (aimed > 0).then_some(&aim), rng);
             sum += l * lobe.weight(&s, pdf_aimed, rays);
         }
         if let Some((grids, texels)) = bright {
@@ -456,11 +456,11 @@ impl Tracer<'_> {
     /// Lambert surface of a plane and some rays are aimed (from where `aim` was made), the
     /// solid-angle density with which an aimed ray picks that point (0 elsewhere: aimed rays
     /// never bring light from there).
-    fn gather_ray_first(&mut self, o: Vec3, d: Vec3, aim: Option<&Aim>, rng: &mut Rng) -> (Rgb, f32) {
-        let Some(hit) = self.accel.intersect(o, d, f32::INFINITY) else {
+    fn gather_ray_first(&mut self, o: Origin, d: Vec3, aim: Option<&Aim>, rng: &mut Rng) -> (Rgb, f32) {
+        let Some(hit) = self.accel.intersect_from(o, d, f32::INFINITY) else {
             return (Rgb::ZERO, 0.0);
         };
-        let sp = SurfacePoint::new(self.scene, o, d, hit);
+        let sp = SurfacePoint::new(self.scene, o.point, d, hit);
         let pdf = match (self.photons.estimator.bright(), aim) {
             (Some((grids, texels)), Some(aim)) if self.is_lambert(&sp) => {
                 grids.plane_facing(sp.triangle, sp.facing_normal).map_or(0.0, |k| {
@@ -512,11 +512,11 @@ impl Tracer<'_> {
 
     /// Radiance leaving the first diffuse surface along a gather ray, emission excluded (direct
     /// light is counted by shadow rays, light through glass by caustic photons).
-    fn gather_ray(&mut self, o: Vec3, d: Vec3, depth: u32, rng: &mut Rng) -> Rgb {
-        let Some(hit) = self.accel.intersect(o, d, f32::INFINITY) else {
+    fn gather_ray(&mut self, o: Origin, d: Vec3, depth: u32, rng: &mut Rng) -> Rgb {
+        let Some(hit) = self.accel.intersect_from(o, d, f32::INFINITY) else {
             return Rgb::ZERO;
         };
-        let sp = SurfacePoint::new(self.scene, o, d, hit);
+        let sp = SurfacePoint::new(self.scene, o.point, d, hit);
         self.gather_at(&sp, d, hit.t, depth, rng)
     }
 
@@ -533,7 +533,7 @@ impl Tracer<'_> {
             return Rgb::ZERO;
         }
         match bsdf::sample_specular(surface, d, sp, t, rng) {
-            Some(s) => s.weight * self.gather_ray(sp.offset(s.direction), s.direction, depth + 1, rng),
+            Some(s) => s.weight * self.gather_ray(sp.leave(s.direction), s.direction, depth + 1, rng),
             None => Rgb::ZERO,
         }
     }

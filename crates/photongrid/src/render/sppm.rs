@@ -13,6 +13,7 @@
 
 use super::gltf::SppmStep;
 use super::{camera_ray, first_hit_aov, CameraPass, Tracer};
+use crate::accel::Origin;
 use crate::bsdf;
 use crate::estimate::density::photon_density;
 use crate::estimate::sppm::SppmPixel;
@@ -94,7 +95,7 @@ impl SppmFilm {
                         for s in 0..spp {
                             let (o, d, mut rng) = camera_ray(camera, settings, x, y, s);
                             let aov = (first_pass && s == 0).then_some(&mut aovs[x]);
-                            let (le, vp) = tracer.visible_point(o, d, &mut rng, aov);
+                            let (le, vp) = tracer.visible_point(o.into(), d, &mut rng, aov);
                             if first_pass && s == 0 {
                                 aovs[x].depth *= d.dot(camera.forward()); // along the axis, see Aov
                             }
@@ -138,7 +139,7 @@ impl Tracer<'_> {
     /// (shadow rays), both weighted by the path, and the visible point if any.
     fn visible_point(
         &mut self,
-        mut o: Vec3,
+        mut o: Origin,
         mut d: Vec3,
         rng: &mut Rng,
         mut aov: Option<&mut Aov>,
@@ -146,10 +147,10 @@ impl Tracer<'_> {
         let mut beta = Rgb::ONE;
         let mut l = Rgb::ZERO;
         for depth in 0..=self.settings.max_specular_depth {
-            let Some(hit) = self.accel.intersect(o, d, f32::INFINITY) else {
+            let Some(hit) = self.accel.intersect_from(o, d, f32::INFINITY) else {
                 break;
             };
-            let sp = SurfacePoint::new(self.scene, o, d, hit);
+            let sp = SurfacePoint::new(self.scene, o.point, d, hit);
             let material = &self.scene.materials[sp.material as usize];
             if depth == 0 {
                 first_hit_aov(&mut aov, &sp, hit.t);
@@ -188,7 +189,7 @@ impl Tracer<'_> {
                         return (l + beta * direct, Some(vp));
                     }
                     SppmStep::Through(w, dir) if depth < self.settings.max_specular_depth => {
-                        (beta, o, d) = (beta * w, sp.offset(dir), dir);
+                        (beta, o, d) = (beta * w, sp.leave(dir), dir);
                         continue;
                     }
                     _ => break,
@@ -204,7 +205,7 @@ impl Tracer<'_> {
             if beta.max_element() <= 0.0 || !beta.is_finite() {
                 break;
             }
-            o = sp.offset(s.direction);
+            o = sp.leave(s.direction);
             d = s.direction;
         }
         (l, None)

@@ -133,6 +133,15 @@ impl Material {
         }
     }
 
+    /// True for glass and transmissive glTF materials: surfaces light passes through.
+    pub fn transmits(&self) -> bool {
+        match &self.surface {
+            Surface::Lambert { .. } | Surface::Mirror { .. } => false,
+            Surface::Dielectric { .. } => true,
+            Surface::Gltf(m) => m.transmission > 0.0 || m.transmission_texture.is_some(),
+        }
+    }
+
     /// True if photons may be stored on the surface (Lambert, and glTF materials: their
     /// diffuse base and wide lobes are rendered from photons).
     pub fn receives_photons(&self) -> bool {
