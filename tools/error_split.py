@@ -1,0 +1,60 @@
+#!/usr/bin/env python3
+"""Split an image's per-pixel error against a reference into its parts.
+
+Two renders of one command with different seeds (A, B) give the render's own noise: the RMS
+of (A - B) / sqrt(2). The reference's standard-error map gives its noise. What is left of the
+squared error of A is the render's bias (blur of sharp light, and light too bright or dark
+where the estimate is systematically off).
+
+All figures are luminance, over the pixels the specular mask keeps (mask <= 0.5), relative to
+the reference's mean luminance there: the per-pixel error is `photongrid compare`'s rel_rmse.
+
+Usage: tools/error_split.py A.exr B.exr REF.exr [--mask MASK.exr] [--stderr STDERR.exr]
+Needs numpy and OpenEXR (as ../shared/tools/score.py).
+"""
+
+import argparse
+
+import numpy as np
+import OpenEXR
+
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+
+
+def read(path):
+    """An EXR's RGB (or its only channel) as float64."""
+    channels = OpenEXR.File(path, separate_channels=True).channels()
+    names = [n for n in ("R", "G", "B") if n in channels]
+    if not names:
+        names = [next(iter(channels))]
+    return np.stack([channels[n].pixels.astype(np.float64) for n in names], axis=-1)
+
+
+def luminance(image):
+    return image[..., :3] @ LUMINANCE if image.shape[-1] >= 3 else image[..., 0]
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("a")
+    ap.add_argument("b")
+    ap.add_argument("reference")
+    ap.add_argument("--mask")
+    ap.add_argument("--stderr")
+    args = ap.parse_args()
+    a, b, r = (luminance(read(p)) for p in (args.a, args.b, args.reference))
+    keep = np.ones(r.shape, bool) if args.mask is None else luminance(read(args.mask)) <= 0.5
+    mean = r[keep].mean()
+    total = np.mean((a - r)[keep] ** 2)
+    noise = np.mean(((a - b) / np.sqrt(2.0))[keep] ** 2)
+    ref_noise = 0.0 if args.stderr is None else np.mean(luminance(read(args.stderr))[keep] ** 2)
+    bias = max(total - noise - ref_noise, 0.0)
+    pct = lambda v: 100.0 * np.sqrt(v) / mean
+    print(f"per-pixel error    {pct(total):6.2f} %  (A against the reference)")
+    print(f"  render's noise   {pct(noise):6.2f} %  (RMS of (A - B) / sqrt 2)")
+    print(f"  reference noise  {pct(ref_noise):6.2f} %  (RMS of its standard error)")
+    print(f"  render's bias    {pct(bias):6.2f} %  (what is left)")
+
+
+if __name__ == "__main__":
+    main()
