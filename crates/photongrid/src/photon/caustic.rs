@@ -92,24 +92,13 @@ impl SpecularTargets {
         self.targets.is_empty()
     }
 
-    /// Sample a photon from `light` towards the targets. Its `flux` has the light's power
-    /// restricted to the targets as expectation.
-    pub fn emit(&self, light: &Light, rng: &mut Rng) -> Option<Emission> {
+    /// How `light`'s caustic photons are aimed at the targets ([`Aim`]).
+    pub fn aim(&self, light: &Light) -> Aim {
         match light {
-            Light::Point { position, .. } | Light::Spot { position, .. } => {
-                let (d, pdf) = self.sample_cones(*position, rng)?;
-                let intensity = light.intensity_towards(d)?;
-                Some(Emission {
-                    origin: *position,
-                    direction: d,
-                    flux: intensity / pdf,
-                })
-            }
+            Light::Point { position, .. } | Light::Spot { position, .. } => Aim::Cones(self.cones_from(*position)),
             Light::Directional {
                 direction,
-                irradiance,
                 scene_center,
-                scene_radius,
                 ..
             } => {
                 let (t, b) = sampling::basis(*direction);
@@ -123,6 +112,35 @@ impl SpecularTargets {
                     .collect();
                 // Discs are chosen in proportion to their area.
                 let choice = Distribution::new(discs.iter().map(|d| d.1 * d.1));
+                Aim::Discs { t, b, discs, choice }
+            }
+            Light::Emissive { .. } => Aim::FromEachPoint,
+        }
+    }
+
+    /// Sample a photon from `light` towards the targets, aimed as `aim` (`self.aim(light)`)
+    /// says. Its `flux` has the light's power restricted to the targets as expectation.
+    pub fn emit(&self, light: &Light, aim: &Aim, rng: &mut Rng) -> Option<Emission> {
+        match (light, aim) {
+            (Light::Point { position, .. } | Light::Spot { position, .. }, Aim::Cones(cones)) => {
+                let (d, pdf) = cones.sample(rng)?;
+                let intensity = light.intensity_towards(d)?;
+                Some(Emission {
+                    origin: *position,
+                    direction: d,
+                    flux: intensity / pdf,
+                })
+            }
+            (
+                Light::Directional {
+                    direction,
+                    irradiance,
+                    scene_center,
+                    scene_radius,
+                    ..
+                },
+                Aim::Discs { t, b, discs, choice },
+            ) => {
                 let j = choice.sample(rng.uniform());
                 let x = discs[j].0 + sampling::concentric_disk(rng.uniform2()) * discs[j].1;
                 // Mixture density over the union of discs (per m²).
@@ -131,17 +149,17 @@ impl SpecularTargets {
                     .filter(|d| (x - d.0).length_squared() <= d.1 * d.1)
                     .map(|d| choice.pmf_of(d.1 * d.1) / (PI * d.1 * d.1))
                     .sum();
-                let origin = *scene_center - *direction * (*scene_radius * 1.01) + t * x.x + b * x.y;
+                let origin = *scene_center - *direction * (*scene_radius * 1.01) + *t * x.x + *b * x.y;
                 Some(Emission {
                     origin,
                     direction: *direction,
                     flux: *irradiance / pdf.max(f32::MIN_POSITIVE),
                 })
             }
-            Light::Emissive { triangles, cdf, .. } => {
+            (Light::Emissive { triangles, cdf, .. }, _) => {
                 let (tri, p_tri) = pick_emitter(triangles, cdf, rng.uniform());
                 let origin = tri.point(rng.uniform2());
-                let (d, pdf) = self.sample_cones(origin, rng)?;
+                let (d, pdf) = self.cones_from(origin).sample(rng)?;
                 let cos = tri.normal.dot(d);
                 if cos <= 0.0 && !tri.double_sided {
                     return None;
@@ -154,12 +172,12 @@ impl SpecularTargets {
                     flux,
                 })
             }
+            _ => None,
         }
     }
 
-    /// A direction from `o` uniform within one target's cone, chosen in proportion to the
-    /// cones' solid angles; returns it with the mixture's solid-angle density.
-    fn sample_cones(&self, o: Vec3, rng: &mut Rng) -> Option<(Vec3, f32)> {
+    /// The targets' cones seen from `o`.
+    fn cones_from(&self, o: Vec3) -> Cones {
         let cones: Vec<(Vec3, f32)> = self
             .targets
             .iter()
@@ -173,18 +191,62 @@ impl SpecularTargets {
                 }
             })
             .collect();
-        let solid = |cos_max: f32| 2.0 * PI * (1.0 - cos_max);
         // Cones are chosen in proportion to their solid angle.
-        let choice = Distribution::new(cones.iter().map(|c| solid(c.1)));
-        if !(choice.total() > 0.0) {
+        let choice = Distribution::new(cones.iter().map(|c| solid_angle(c.1)));
+        Cones { cones, choice }
+    }
+}
+
+/// How a light's caustic photons are aimed at the targets: made once per light
+/// ([`SpecularTargets::aim`]) where it is the same for every photon, so emitting one builds
+/// nothing.
+#[derive(Clone, Debug)]
+pub enum Aim {
+    /// The cones from a point or spot light's position.
+    Cones(Cones),
+    /// The targets' discs across a sun's beam, in the basis (`t`, `b`) of its direction,
+    /// chosen by area.
+    Discs {
+        /// First axis across the beam.
+        t: Vec3,
+        /// Second axis across the beam.
+        b: Vec3,
+        /// Centre (in `t`, `b`) and radius of each target's disc.
+        discs: Vec<(glam::Vec2, f32)>,
+        /// Chooses a disc in proportion to its area.
+        choice: Distribution,
+    },
+    /// An emissive surface: the cones from each emitted point.
+    FromEachPoint,
+}
+
+/// The targets' cones seen from one point: axis and cosine of the half-angle of each, chosen in
+/// proportion to their solid angles.
+#[derive(Clone, Debug)]
+pub struct Cones {
+    cones: Vec<(Vec3, f32)>,
+    choice: Distribution,
+}
+
+/// Solid angle of a cone of half-angle cosine `cos_max`.
+fn solid_angle(cos_max: f32) -> f32 {
+    2.0 * PI * (1.0 - cos_max)
+}
+
+impl Cones {
+    /// A direction uniform within one cone, the cone chosen in proportion to its solid angle,
+    /// with the mixture's solid-angle density.
+    fn sample(&self, rng: &mut Rng) -> Option<(Vec3, f32)> {
+        if !(self.choice.total() > 0.0) {
             return None;
         }
-        let j = choice.sample(rng.uniform());
-        let d = sampling::uniform_cone(rng.uniform2(), cones[j].1, cones[j].0);
-        let pdf: f32 = cones
+        let j = self.choice.sample(rng.uniform());
+        let d = sampling::uniform_cone(rng.uniform2(), self.cones[j].1, self.cones[j].0);
+        let pdf: f32 = self
+            .cones
             .iter()
             .filter(|c| d.dot(c.0) >= c.1)
-            .map(|c| choice.pmf_of(solid(c.1)) / solid(c.1))
+            .map(|c| self.choice.pmf_of(solid_angle(c.1)) / solid_angle(c.1))
             .sum();
         Some((d, pdf.max(1e-30)))
     }
@@ -216,13 +278,14 @@ mod tests {
             position: Vec3::ZERO,
             intensity: Rgb::ONE,
         };
+        let aim = t.aim(&l);
         let mut rng = Rng::keyed(1, 2, 3);
         let n = 400_000;
         let axis = Vec3::new(0.0, 0.0, -1.0);
         let cos_a = (1.0f32 - 0.25 / 4.0).sqrt();
         let mut sum = 0.0f64;
         for _ in 0..n {
-            let e = t.emit(&l, &mut rng).unwrap();
+            let e = t.emit(&l, &aim, &mut rng).unwrap();
             if e.direction.dot(axis) >= cos_a {
                 sum += e.flux.x as f64;
             }

@@ -253,6 +253,7 @@ pub fn trace_photons(
     let global_seconds = t0.elapsed().as_secs_f64();
     let nc = if caustic_pass { settings.caustic_photons } else { 0 };
     if nc > 0 {
+        let aims: Vec<_> = scene.lights.iter().map(|l| targets.aim(l)).collect();
         let pass = Pass {
             kind: PassKind::Caustic,
             stream: stream::CAUSTIC_PHOTONS,
@@ -266,7 +267,7 @@ pub fn trace_photons(
             &|_| {},
             &|rng| {
                 let (l, p) = pick_light(rng);
-                targets.emit(&scene.lights[l], rng).map(|e| (e, p))
+                targets.emit(&scene.lights[l], &aims[l], rng).map(|e| (e, p))
             },
             &mut out,
         );
