@@ -996,8 +996,8 @@ fn clearance(
 /// Whether a point of a surface with front normal `n` lies inside a closed opaque solid
 /// resting on its front (under a box on the floor): the first surface met along the normal and
 /// along both in-plane axes is hit from its back, and is not glass (light reaches the table
-/// under a glass through it, and is seen through it). (Only the front: every face of a solid has the
-/// solid itself behind it.) Directions lean slightly off the axes (a ray through the shared
+/// under a glass through it, and is seen through it). (Only the front: every face of a solid
+/// has the solid itself behind it.) Directions lean slightly off the axes (a ray through the shared
 /// edge of two triangles, where cell centres often lie, can slip between them) and towards
 /// the front (so they do not cross the surface).
 fn inside_solid(scene: &Scene, accel: &Accel, p: glam::Vec3, n: glam::Vec3) -> bool {

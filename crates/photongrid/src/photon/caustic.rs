@@ -172,6 +172,7 @@ impl SpecularTargets {
                     flux,
                 })
             }
+            // An aim made for another kind of light: nothing is aimed.
             _ => None,
         }
     }
