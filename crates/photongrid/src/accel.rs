@@ -318,16 +318,18 @@ impl Accel {
 
     /// Closest hit along `origin + t·dir`, `t` in (0, tmax).
     pub fn intersect(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit> {
-        let ray = self.ray(origin, dir, tmax);
+        self.closest(self.ray(origin, dir, tmax), |r, id| self.test(r, id))
+    }
+
+    /// The closest hit of `ray` (in the BVH's units) by the triangle test `test`, in the
+    /// scene's units and triangles.
+    #[inline]
+    fn closest(&self, ray: Ray, test: impl FnMut(&Ray, usize) -> f32) -> Option<Hit> {
         let mut hit = RayHit::none();
-        if self.bvh.ray_traverse(ray, &mut hit, |r, id| self.test(r, id)) {
-            Some(Hit {
-                t: hit.t / self.scale,
-                triangle: self.original[hit.primitive_id as usize],
-            })
-        } else {
-            None
-        }
+        self.bvh.ray_traverse(ray, &mut hit, test).then(|| Hit {
+            t: hit.t / self.scale,
+            triangle: self.original[hit.primitive_id as usize],
+        })
     }
 
     /// Closest hit along `origin.point + t·dir`, `t` in (0, tmax); for a ray leaving a face in
@@ -339,7 +341,6 @@ impl Accel {
         };
         let lead = CONTACT_LEAD / self.scale;
         let ray = self.ray(l.at - dir * lead, dir, tmax + lead);
-        let mut hit = RayHit::none();
         let test = |r: &Ray, id: usize| {
             let t = self.test(r, id);
             if t < 2.0 * CONTACT_LEAD && self.material[id] == l.material {
@@ -348,16 +349,12 @@ impl Accel {
                 t
             }
         };
-        if self.bvh.ray_traverse(ray, &mut hit, test) {
-            // Measured from `origin.point`, as every hit.
-            let before = lead + (l.at - origin.point).dot(dir);
-            Some(Hit {
-                t: (hit.t / self.scale - before).max(0.0),
-                triangle: self.original[hit.primitive_id as usize],
-            })
-        } else {
-            None
-        }
+        // Measured from `origin.point`, as every hit.
+        let before = lead + (l.at - origin.point).dot(dir);
+        self.closest(ray, test).map(|h| Hit {
+            t: (h.t - before).max(0.0),
+            ..h
+        })
     }
 
     /// True if anything blocks the segment from `origin` along `dir` up to `tmax`.
