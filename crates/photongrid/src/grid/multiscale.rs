@@ -470,11 +470,10 @@ impl LayerTexture {
         self.plane.cell_area() * (1u64 << (2 * level)) as f32
     }
 
-    /// How far from its point a kernel at `level` can reach: bilinear weights over texels of
-    /// 2^level cells span one and a half texels each way.
+    /// How far from its point a kernel at `level` can reach ([`REACH_TEXELS`]).
     pub fn kernel_reach(&self, level: usize) -> f32 {
         let cell = (self.plane.size_u / self.plane.res_u as f32).max(self.plane.size_v / self.plane.res_v as f32);
-        1.5 * cell * (1u64 << level) as f32
+        REACH_TEXELS * cell * (1u64 << level) as f32
     }
 
     /// The finest level with at most `max_texels` texels, and its size.
@@ -1339,7 +1338,8 @@ impl MultiscaleGrids {
 
     /// One line per plane for reports: size, the side whose light it holds, and each layer's
     /// fine cells (sized for about `--cell-photons` photons where that layer is densest, within
-    /// `--grid-cells`) with the texture final-gather rays read.
+    /// `--grid-cells`, indirect layers then moved so that a kernel reaches `--max-radius`) with
+    /// its widest kernel under the cap and the texture final-gather rays read.
     pub fn describe(&self) -> Vec<String> {
         self.textures
             .iter()
@@ -1372,8 +1372,23 @@ impl MultiscaleGrids {
                         d if d > 0.0 => format!(", {:.1} % of it found dark (no light of this kind)", d * 100.0),
                         _ => String::new(),
                     };
+                    // Indirect layers' cells are moved so that this is about the cap
+                    // (`snap_to_reach`).
+                    let widest = (0..l.level_count())
+                        .map(|k| l.kernel_reach(k))
+                        .take_while(|&r| r <= self.max_radius)
+                        .last()
+                        .filter(|_| self.max_radius.is_finite())
+                        .map(|r| {
+                            format!(
+                                ", widest kernel {:.1} mm of --max-radius {:.1} mm",
+                                r * 1e3,
+                                self.max_radius * 1e3
+                            )
+                        })
+                        .unwrap_or_default();
                     format!(
-                        "{}×{} cells of {:.1} mm ({}{grown}){dark}{read}",
+                        "{}×{} cells of {:.1} mm ({}{grown}){widest}{dark}{read}",
                         l.plane.res_u,
                         l.plane.res_v,
                         l.cell_size() * 1e3,
@@ -1462,16 +1477,14 @@ fn fine_resolutions(
         .planes
         .iter()
         .zip(&cell)
-        .flat_map(|(p, c)| {
-            c.iter()
-                .map(move |&(c, _)| ((p.size_u / c).ceil() * (p.size_v / c).ceil()) as f64)
-        })
+        .flat_map(|(p, c)| c.iter().map(move |&(c, _)| cells_of(p, c)))
         .sum();
     let mut grow = 1.0;
     if total > params.cell_budget as f64 {
         grow = (total / params.cell_budget as f64).sqrt() as f32;
         cell.iter_mut().flatten().for_each(|c| c.0 *= grow);
     }
+    snap_to_reach(&set.planes, &mut cell, params);
     let dims = set
         .planes
         .iter()
@@ -1485,6 +1498,82 @@ fn fine_resolutions(
         })
         .collect();
     (dims, grow)
+}
+
+/// How far a kernel reaches from its point, in texels of its level: bilinear weights over
+/// texels span one and a half texels each way.
+const REACH_TEXELS: f32 = 1.5;
+
+/// How much under `--max-radius` a snapped cell puts its widest kernel's reach, so that
+/// rounding never puts it past the cap (which would drop that level).
+const SNAP_MARGIN: f32 = 1e-4;
+
+/// Cells along a plane's sides for fine cells of side `c`.
+fn cells_of(p: &Plane, c: f32) -> f64 {
+    ((p.size_u / c).ceil() * (p.size_v / c).ceil()) as f64
+}
+
+/// Move the indirect layers' fine cell sizes (and the tail's) so that one of their levels'
+/// kernels reaches `params.max_radius` (a hair under it). A level's reach doubles from one
+/// level to the next, so under the cap the widest kernel lands anywhere between half the cap
+/// and the cap, by where the photon counts and the cell budget happen to put the cells. On
+/// pool_caustic's floor a few per cent of cell size then cost the widest level, three quarters
+/// of its photons, and with them the photons' indirect estimate everywhere: final gathering
+/// took over, at twice the camera's cost and with a worse image (docs/multiscale.md, "The
+/// widest kernel, a level short"). Each size goes to the nearer (within √2) of the two sizes
+/// around it whose levels reach the cap; where sizes made finer break the cell budget, they go
+/// to the coarser one instead, largest layer first. Sizes outside the resolution limits keep
+/// their size. The caustic and direct layers keep the size their photons asked for: their
+/// edges (a caustic's, a shadow's) need the resolution.
+fn snap_to_reach(planes: &[Plane], cell: &mut [[(f32, Sizing); LAYERS]], params: &MultiscaleParams) {
+    let cap = params.max_radius * (1.0 - SNAP_MARGIN);
+    if !(cap.is_finite() && cap > 0.0) {
+        return;
+    }
+    // The layers made finer: plane, layer, and the coarser size they may fall back to.
+    let mut finer: Vec<(usize, usize, f32)> = Vec::new();
+    for (i, (p, layers)) in planes.iter().zip(cell.iter_mut()).enumerate() {
+        let longest = p.size_u.max(p.size_v);
+        let (finest, coarsest) = (longest / params.max_resolution as f32, longest / 8.0);
+        // A layer without photons has nothing to estimate.
+        for (l, (c, _)) in layers
+            .iter_mut()
+            .enumerate()
+            .filter(|(l, (_, sizing))| matches!(*l, INDIRECT | TAIL) && *sizing != Sizing::NoPhotons)
+        {
+            let levels = (cap / (REACH_TEXELS * *c)).log2();
+            if !(levels >= 0.0) {
+                continue; // even the finest kernel reaches past the cap
+            }
+            let coarse = cap / (REACH_TEXELS * levels.floor().exp2());
+            let fine = coarse / 2.0;
+            // The nearer of the two by ratio, where the resolution limits allow it (a tight
+            // budget may already have grown the cells past the coarsest).
+            let coarsest = coarsest.max(*c);
+            if fine >= finest && (levels.fract() > 0.5 || coarse > coarsest) {
+                finer.push((i, l, coarse));
+                *c = fine;
+            } else if coarse <= coarsest {
+                *c = coarse;
+            }
+        }
+    }
+    let mut total: f64 = planes
+        .iter()
+        .zip(cell.iter())
+        .flat_map(|(p, c)| c.iter().map(move |&(c, _)| cells_of(p, c)))
+        .sum();
+    finer.sort_by(|a, b| {
+        let n = |&(i, l, _): &(usize, usize, f32)| cells_of(&planes[i], cell[i][l].0);
+        n(b).total_cmp(&n(a))
+    });
+    for (i, l, coarse) in finer {
+        if total <= params.cell_budget as f64 {
+            break;
+        }
+        total -= cells_of(&planes[i], cell[i][l].0) - cells_of(&planes[i], coarse);
+        cell[i][l].0 = coarse;
+    }
 }
 
 /// Area of the plane's triangles inside each fine cell (m²) and its moments about the cell's
@@ -1865,27 +1954,24 @@ mod tests {
         }
     }
 
-    #[test]
-    fn each_layer_says_why_its_cells_have_their_size() {
+    /// Grids over the 2 m square from the lattice's photons, nothing standing on it.
+    fn lattice_grids(params: &MultiscaleParams) -> MultiscaleGrids {
         let tris = square(2.0);
         let set = detect_planes(&tris, &PlaneParams::default());
-        // 64 × 64 global photons on a lattice over the 4 m² square, no caustic photons: 4 per
-        // coarse (32 × 32) cell, 1024 per m², so 2 per cell makes cells of √(2/1024) m.
         let photons = lattice_photons();
         let triangles = vec![0; photons.len()];
         let probes = Probes {
             buried: &|_, _| false,
             clearance: &|_, _, _| f32::INFINITY,
         };
-        let g = MultiscaleGrids::build(
-            set.clone(),
-            &tris,
-            &photons,
-            &triangles,
-            &MultiscaleParams::default(),
-            &probes,
-            None,
-        );
+        MultiscaleGrids::build(set, &tris, &photons, &triangles, params, &probes, None)
+    }
+
+    #[test]
+    fn each_layer_says_why_its_cells_have_their_size() {
+        // 64 × 64 global photons on a lattice over the 4 m² square, no caustic photons: 4 per
+        // coarse (32 × 32) cell, 1024 per m², so 2 per cell makes cells of √(2/1024) m.
+        let g = lattice_grids(&MultiscaleParams::default());
         let t = &g.textures[0];
         assert_eq!(t[INDIRECT].sizing, Sizing::Densest);
         assert_eq!(
@@ -1904,13 +1990,44 @@ mod tests {
             cell_budget: 100,
             ..MultiscaleParams::default()
         };
-        let g = MultiscaleGrids::build(set, &tris, &photons, &triangles, &tight, &probes, None);
+        let g = lattice_grids(&tight);
         assert!(
             g.cells_grown > 1.0 && g.textures[0][INDIRECT].plane.res_u < 46,
             "{}",
             g.cells_grown
         );
         assert!(g.describe()[0].contains("wider to fit --grid-cells"));
+    }
+
+    #[test]
+    fn the_widest_kernel_reaches_the_cap_wherever_the_cells_fall() {
+        // The lattice asks for indirect cells of 44 mm. Without the snap, the widest level
+        // under a cap of 0.37 m or 0.5 m reaches 265 mm (0.72 and 0.53 of the cap).
+        let fine_cells = |g: &MultiscaleGrids| g.textures[0].iter().map(|t| t.levels[0].texels.len()).sum::<usize>();
+        for cell_budget in [4 << 20, 100] {
+            let uncapped = MultiscaleParams {
+                cell_budget,
+                ..MultiscaleParams::default()
+            };
+            let unsnapped = fine_cells(&lattice_grids(&uncapped));
+            for max_radius in [0.3, 0.37, 0.5, 0.61, 0.8] {
+                let g = lattice_grids(&MultiscaleParams { max_radius, ..uncapped });
+                let t = &g.textures[0][INDIRECT];
+                let widest = (0..t.level_count())
+                    .map(|k| t.kernel_reach(k))
+                    .take_while(|&r| r <= max_radius)
+                    .last();
+                // (100 cells make cells whose finest kernel reaches past every cap here.)
+                if cell_budget > 100 {
+                    let widest = widest.expect("a level under the cap");
+                    assert!(widest > 0.85 * max_radius, "cap {max_radius}: widest {widest}");
+                    assert!(g.describe()[0].contains("of --max-radius"), "{}", g.describe()[0]);
+                }
+                // Made finer only within the budget.
+                let cells = fine_cells(&g);
+                assert!(cells <= cell_budget.max(unsnapped), "{cells} cells against {unsnapped}");
+            }
+        }
     }
 
     #[test]
@@ -1989,6 +2106,15 @@ mod tests {
             let g = MultiscaleGrids::build(set, &tris, &photons, &triangles, &params, &probes, None);
             let t = &g.textures[0][layer];
             let cell = t.plane.cell_of(Vec3::new(x, 0.0, 1.0), 0.0).unwrap();
+            eprintln!(
+                "DBG layer {layer} res {} {} size {} {} cell {} gc {:?}",
+                t.plane.res_u,
+                t.plane.res_v,
+                t.plane.size_u,
+                t.plane.size_v,
+                cell,
+                t.plane.grid_coords(Vec3::new(2.0, 0.0, 1.0))
+            );
             t.levels[0].texels[cell].clearance
         };
         // The floor runs on behind a wall standing across it: both layers stop there.
