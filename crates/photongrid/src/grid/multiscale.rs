@@ -1473,12 +1473,7 @@ fn fine_resolutions(
         })
         .collect();
     // Within the budget: grow every cell alike.
-    let total: f64 = set
-        .planes
-        .iter()
-        .zip(&cell)
-        .flat_map(|(p, c)| c.iter().map(move |&(c, _)| cells_of(p, c)))
-        .sum();
+    let total = total_cells(&set.planes, &cell);
     let mut grow = 1.0;
     if total > params.cell_budget as f64 {
         grow = (total / params.cell_budget as f64).sqrt() as f32;
@@ -1511,6 +1506,15 @@ const SNAP_MARGIN: f32 = 1e-4;
 /// Cells along a plane's sides for fine cells of side `c`.
 fn cells_of(p: &Plane, c: f32) -> f64 {
     ((p.size_u / c).ceil() * (p.size_v / c).ceil()) as f64
+}
+
+/// Fine cells of every plane and layer for the cell sizes `cell`.
+fn total_cells(planes: &[Plane], cell: &[[(f32, Sizing); LAYERS]]) -> f64 {
+    planes
+        .iter()
+        .zip(cell)
+        .flat_map(|(p, c)| c.iter().map(move |&(c, _)| cells_of(p, c)))
+        .sum()
 }
 
 /// Move the indirect layers' fine cell sizes (and the tail's) so that one of their levels'
@@ -1558,11 +1562,7 @@ fn snap_to_reach(planes: &[Plane], cell: &mut [[(f32, Sizing); LAYERS]], params:
             }
         }
     }
-    let mut total: f64 = planes
-        .iter()
-        .zip(cell.iter())
-        .flat_map(|(p, c)| c.iter().map(move |&(c, _)| cells_of(p, c)))
-        .sum();
+    let mut total = total_cells(planes, cell);
     finer.sort_by(|a, b| {
         let n = |&(i, l, _): &(usize, usize, f32)| cells_of(&planes[i], cell[i][l].0);
         n(b).total_cmp(&n(a))
