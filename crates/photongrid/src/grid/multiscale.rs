@@ -476,6 +476,14 @@ impl LayerTexture {
         REACH_TEXELS * cell * (1u64 << level) as f32
     }
 
+    /// The reach of the widest kernel within `cap` (m), if any level's is.
+    pub fn widest_reach(&self, cap: f32) -> Option<f32> {
+        (0..self.level_count())
+            .map(|k| self.kernel_reach(k))
+            .take_while(|&r| r <= cap)
+            .last()
+    }
+
     /// The finest level with at most `max_texels` texels, and its size.
     pub fn level_within(&self, max_texels: usize) -> (usize, usize, usize) {
         let mut best = self.levels.len() - 1;
@@ -1374,10 +1382,8 @@ impl MultiscaleGrids {
                     };
                     // Indirect layers' cells are moved so that this is about the cap
                     // (`snap_to_reach`).
-                    let widest = (0..l.level_count())
-                        .map(|k| l.kernel_reach(k))
-                        .take_while(|&r| r <= self.max_radius)
-                        .last()
+                    let widest = l
+                        .widest_reach(self.max_radius)
                         .filter(|_| self.max_radius.is_finite())
                         .map(|r| {
                             format!(
@@ -2013,10 +2019,7 @@ mod tests {
             for max_radius in [0.3, 0.37, 0.5, 0.61, 0.8] {
                 let g = lattice_grids(&MultiscaleParams { max_radius, ..uncapped });
                 let t = &g.textures[0][INDIRECT];
-                let widest = (0..t.level_count())
-                    .map(|k| t.kernel_reach(k))
-                    .take_while(|&r| r <= max_radius)
-                    .last();
+                let widest = t.widest_reach(max_radius);
                 // (100 cells make cells whose finest kernel reaches past every cap here.)
                 if cell_budget > 100 {
                     let widest = widest.expect("a level under the cap");
