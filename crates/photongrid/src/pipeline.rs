@@ -12,7 +12,7 @@ use crate::grid::PlaneGrids;
 use crate::grid::{GridParams, Grids};
 use crate::photon::{trace_photons, Photon, PhotonKind, PhotonStats, TraceSettings};
 use crate::progress::Progress;
-use crate::render::budget::{corrected, plan, Costs, PassSize, Plan, Stage};
+use crate::render::budget::{corrected, plan, Costs, PassSize, Plan, Stage, GATHER_LADDER};
 use crate::render::progressive::{Accumulator, Budget, Stop};
 use crate::render::{CameraPass, Cut, PhotonData, RenderSettings};
 use crate::sampling::pass_seed;
@@ -20,6 +20,7 @@ use crate::scene::{Camera, Scene};
 use crate::settings::{DirectLighting, Settings, SettingsError};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
+use std::sync::atomic::AtomicU64;
 use std::time::{Duration, Instant};
 
 /// Why a render could not run.
@@ -813,42 +814,18 @@ fn probe_costs(
     );
     let surfaces = Surfaces::new(scene, accel, &probe_settings);
     let input = PhotonData {
-        estimator: Estimator::for_pass(&probe_settings, 0, &photons.map, grids.view(), &surfaces)
-            .with_gather_rays(probe_gather_rays(probe, requested)),
+        estimator: Estimator::for_pass(&probe_settings, 0, &photons.map, grids.view(), &surfaces),
         irradiance: photons.irradiance.as_ref(),
     };
-    let (mut samples, mut plain, mut gathered, mut pixels) = (0u64, 0.0, 0.0, 0u64);
-    for camera in cameras {
-        let mut rs = render_settings(camera, &probe_settings, u32::MAX);
-        pixels += rs.width as u64 * rs.height as u64;
-        rs.width = (rs.width / PROBE_SHRINK).max(4);
-        rs.height = (rs.height / PROBE_SHRINK).max(3);
-        samples += rs.width as u64 * rs.height as u64;
-        let time = |gather: u32| {
-            let t = Instant::now();
-            let rs = RenderSettings { gather, ..rs.clone() };
-            let pass = CameraPass {
-                scene,
-                accel,
-                photons: input,
-                camera,
-                settings: &rs,
-            };
-            drop(crate::render::render(pass, &|_| {}));
-            t.elapsed().as_secs_f64()
-        };
-        // A few milliseconds each: the first run pays for cold caches and idle threads, and
-        // single runs varied twofold; a warm-up, then the median of three.
-        time(0);
-        let mut runs: [[f64; 2]; PROBE_CAMERA_RUNS] = [[0.0; 2]; PROBE_CAMERA_RUNS];
-        for run in &mut runs {
-            *run = [time(0), time(probe.gather)];
-        }
-        plain += median_of(runs.map(|r| r[0]));
-        gathered += median_of(runs.map(|r| r[1]));
-    }
-    let samples = samples.max(1) as f64;
-    let gather_rays = samples * probe.gather.max(1) as f64;
+    let camera = CameraProbe::run(
+        scene,
+        accel,
+        cameras,
+        &probe_settings,
+        input,
+        probe_gather_rays(probe, requested),
+    );
+    let per_ray = camera.per_gather_ray();
     let (per_path, per_caustic_path) = path_costs(&photons.stats, &scratch, &probe);
     Costs {
         per_pass: scratch.grids,
@@ -859,14 +836,128 @@ fn probe_costs(
             let global = (photons.stats.direct + photons.stats.indirect).max(1) as f64;
             (g.photons_counted(DIRECT) + g.photons_counted(INDIRECT)) / global
         }),
-        per_sample: PROBE_CAMERA_BIAS * plain / samples,
-        per_gather_ray: if probe.gather > 0 {
-            PROBE_CAMERA_BIAS * (gathered - plain).max(0.0) / gather_rays
+        per_sample: PROBE_CAMERA_BIAS * camera.plain / camera.samples.max(1) as f64,
+        per_gather_ray: per_ray[0],
+        per_gather_ray_sparser: std::array::from_fn(|i| per_ray[i + 1]),
+        photons_per_gather_ray: if camera.ladder {
+            requested.photons as f64 / (requested.spp * requested.gather) as f64
         } else {
             0.0
         },
-        pixels,
+        prior_photons: 0.0,
+        prior_gather_rays: 0.0,
+        pixels: camera.pixels,
         probe_seconds: t0.elapsed().as_secs_f64(),
+    }
+}
+
+/// What the probe's camera passes measured, over all cameras.
+struct CameraProbe {
+    /// Pixels of the full-size cameras.
+    pixels: u64,
+    /// Camera samples of a timed pass.
+    samples: u64,
+    /// Gather rays per sample.
+    gather: u32,
+    /// Seconds without gathering and with it, the estimate read at the fewest photons per
+    /// gather ray both times (their difference is gathering's).
+    plain: f64,
+    gathered: f64,
+    /// Whether the points that gather depend on the photons per gather ray; if so, how many
+    /// asked for gathering at each rung of [`GATHER_LADDER`].
+    ladder: bool,
+    points: [u64; GATHER_LADDER + 1],
+}
+
+impl CameraProbe {
+    /// Time each camera at a reduced resolution without final gathering and with it where the
+    /// photons per gather ray are fewest (the most points gather, the steadiest cost per
+    /// point), and count the points that ask for it at each rung (without gathering: cheap).
+    /// The `input` estimator is read with `base_rays` gather rays per pixel at the first rung.
+    fn run(
+        scene: &Scene,
+        accel: &Accel,
+        cameras: &[&Camera],
+        settings: &Settings,
+        input: PhotonData<'_>,
+        base_rays: f32,
+    ) -> Self {
+        let gather = settings.effective_gather();
+        let rays_at = |rung: usize| base_rays * (1u32 << rung) as f32;
+        let ladder = gather > 0 && input.estimator.weighs_gather_rays();
+        let (mut samples, mut plain, mut gathered, mut pixels) = (0u64, 0.0, 0.0, 0u64);
+        let points: [AtomicU64; GATHER_LADDER + 1] = Default::default();
+        for camera in cameras {
+            let mut rs = render_settings(camera, settings, u32::MAX);
+            pixels += rs.width as u64 * rs.height as u64;
+            rs.width = (rs.width / PROBE_SHRINK).max(4);
+            rs.height = (rs.height / PROBE_SHRINK).max(3);
+            samples += rs.width as u64 * rs.height as u64;
+            // The points are counted at a quarter of the timed pixels: a share needs fewer.
+            let counted_rs = RenderSettings {
+                width: (rs.width / 2).max(4),
+                height: (rs.height / 2).max(3),
+                ..rs.clone()
+            };
+            let run = |rs: &RenderSettings, gather: u32, rays: f32, counted: Option<&AtomicU64>| {
+                let t = Instant::now();
+                let rs = RenderSettings { gather, ..rs.clone() };
+                let photons = PhotonData {
+                    estimator: input.estimator.with_gather_rays(rays),
+                    ..input
+                };
+                let pass = CameraPass {
+                    scene,
+                    accel,
+                    photons,
+                    camera,
+                    settings: &rs,
+                    gathering_points: counted,
+                };
+                drop(crate::render::render(pass, &|_| {}));
+                t.elapsed().as_secs_f64()
+            };
+            // A few milliseconds each: the first run pays for cold caches and idle threads,
+            // and single runs varied twofold; a warm-up, then the median of three.
+            let time = |gather: u32| run(&rs, gather, rays_at(GATHER_LADDER), None);
+            time(0);
+            let mut runs: [[f64; 2]; PROBE_CAMERA_RUNS] = [[0.0; 2]; PROBE_CAMERA_RUNS];
+            for r in &mut runs {
+                *r = [time(0), time(gather)];
+            }
+            plain += median_of(runs.map(|r| r[0]));
+            gathered += median_of(runs.map(|r| r[1]));
+            if ladder {
+                for (rung, n) in points.iter().enumerate() {
+                    run(&counted_rs, 0, rays_at(rung), Some(n));
+                }
+            }
+        }
+        CameraProbe {
+            pixels,
+            samples,
+            gather,
+            plain,
+            gathered,
+            ladder,
+            points: points.map(AtomicU64::into_inner),
+        }
+    }
+
+    /// Seconds per gather ray at each rung: at the sparsest as timed, at the others by their
+    /// share of its gathering points (the same camera points, so the share grows with the
+    /// rung).
+    fn per_gather_ray(&self) -> [f64; GATHER_LADDER + 1] {
+        let rays = (self.samples.max(1) * u64::from(self.gather.max(1))) as f64;
+        let sparsest = PROBE_CAMERA_BIAS * (self.gathered - self.plain).max(0.0) / rays;
+        let most = self.points[GATHER_LADDER];
+        std::array::from_fn(|rung| {
+            if self.ladder && most > 0 {
+                sparsest * self.points[rung] as f64 / most as f64
+            } else {
+                sparsest
+            }
+        })
     }
 }
 
@@ -1222,6 +1313,7 @@ fn render_pass(
             photons,
             camera,
             settings: &rs,
+            gathering_points: None,
         };
         acc.add_pass(camera_pass, &|n| phase.inc(n as u64), cut, weight)
     };

@@ -14,6 +14,24 @@ fn scene() -> photongrid::scene::Scene {
     photongrid::load(&photongrid_testkit::repo_root().join("samples/cornell_glass.glb")).unwrap()
 }
 
+/// A 32×24 camera pass of `spp` samples and `gather` gather rays with `settings`' options.
+fn render_settings(settings: &Settings, spp: u32, gather: u32) -> photongrid::render::RenderSettings {
+    photongrid::render::RenderSettings {
+        width: 32,
+        height: 24,
+        spp,
+        direct: settings.direct,
+        light_samples: settings.light_samples,
+        max_specular_depth: settings.max_specular_depth,
+        split_depth: settings.split_depth,
+        seed: 1,
+        sequence_seed: 1,
+        first_sample: 0,
+        gather,
+        gather_bright: settings.gather_bright,
+    }
+}
+
 fn small() -> Settings {
     Settings {
         width: Some(64),
@@ -69,6 +87,13 @@ fn a_budget_sizes_passes_from_a_probe_and_says_why() {
     };
     assert_eq!(b.plan.size.spp, spp);
     assert!(b.plan.reason.contains("fits"), "{}", b.plan.reason);
+    // Gathering is priced at the requested photons per gather ray and at fewer: never cheaper.
+    let ladder: Vec<f64> = std::iter::once(c.per_gather_ray)
+        .chain(c.per_gather_ray_sparser)
+        .collect();
+    assert!(ladder.is_sorted() && ladder[0] >= 0.0, "{ladder:?}");
+    let requested_rays = (settings.spp * settings.effective_gather()) as f64;
+    assert_eq!(c.photons_per_gather_ray, settings.photons as f64 / requested_rays);
     assert_eq!(r.report.passes.count, 2);
     assert_eq!(r.report.passes.stopped_by, Some(Stop::Passes));
     assert!(r.report.seconds.probe > 0.0);
@@ -109,7 +134,7 @@ fn a_budget_already_spent_still_gives_one_complete_pass_and_no_more() {
 #[test]
 fn a_camera_pass_past_its_deadline_keeps_its_required_sweeps_only() {
     use photongrid::estimate::Estimator;
-    use photongrid::render::{render, render_until, CameraPass, Cut, PhotonData, RenderSettings};
+    use photongrid::render::{render, render_until, CameraPass, Cut, PhotonData};
     let scene = scene();
     let settings = small();
     let prepared = photongrid::prepare(&scene, &settings, &Progress::quiet(), &mut Default::default()).unwrap();
@@ -118,20 +143,7 @@ fn a_camera_pass_past_its_deadline_keeps_its_required_sweeps_only() {
         estimator: Estimator::for_pass(&settings, 0, &prepared.map, prepared.grids.view(), &surfaces),
         irradiance: prepared.irradiance.as_ref(),
     };
-    let rs = RenderSettings {
-        width: 32,
-        height: 24,
-        spp: 3,
-        direct: settings.direct,
-        light_samples: settings.light_samples,
-        max_specular_depth: settings.max_specular_depth,
-        split_depth: settings.split_depth,
-        seed: 1,
-        sequence_seed: 1,
-        first_sample: 0,
-        gather: 2,
-        gather_bright: settings.gather_bright,
-    };
+    let rs = render_settings(&settings, 3, 2);
     let camera = &scene.cameras[0];
     let past = Some(Instant::now() - Duration::from_millis(1));
     let pass = CameraPass {
@@ -140,6 +152,7 @@ fn a_camera_pass_past_its_deadline_keeps_its_required_sweeps_only() {
         photons: input,
         camera,
         settings: &rs,
+        gathering_points: None,
     };
     let cut = |deadline, required| Cut { deadline, required };
     assert!(
@@ -156,4 +169,42 @@ fn a_camera_pass_past_its_deadline_keeps_its_required_sweeps_only() {
     let plain = render(pass, &|_| {});
     assert_eq!(whole.film.color, plain.color);
     assert_ne!(first.film.color, plain.color);
+}
+
+#[test]
+fn the_points_that_ask_for_gathering_are_counted_with_or_without_gather_rays() {
+    use photongrid::estimate::Estimator;
+    use photongrid::render::{render, CameraPass, PhotonData};
+    use std::sync::atomic::{AtomicU64, Ordering};
+    let scene = scene();
+    let settings = small();
+    let prepared = photongrid::prepare(&scene, &settings, &Progress::quiet(), &mut Default::default()).unwrap();
+    let surfaces = photongrid::estimate::Surfaces::new(&scene, &prepared.accel, &settings);
+    let estimator = Estimator::for_pass(&settings, 0, &prepared.map, prepared.grids.view(), &surfaces);
+    assert!(estimator.weighs_gather_rays(), "the default estimate");
+    let count = |gather: u32, rays: f32| {
+        let rs = render_settings(&settings, 1, gather);
+        let n = AtomicU64::new(0);
+        let pass = CameraPass {
+            scene: &scene,
+            accel: &prepared.accel,
+            photons: PhotonData {
+                estimator: estimator.with_gather_rays(rays),
+                irradiance: prepared.irradiance.as_ref(),
+            },
+            camera: &scene.cameras[0],
+            settings: &rs,
+            gathering_points: Some(&n),
+        };
+        drop(render(pass, &|_| {}));
+        n.load(Ordering::Relaxed)
+    };
+    // With no gather rays to weigh, the photons serve wherever their kernels hold enough; with
+    // very many, gathering is asked for on every diffuse point: fewer photons per ray, more.
+    let (few, many) = (count(0, 0.0), count(0, 1e9));
+    assert!(few < many && many >= 32 * 24 / 2, "{few} {many}");
+    // Whether the pass gathers does not change what is asked for (up to the paths glass
+    // splits differently once gathering has drawn its random numbers).
+    let gathered = count(2, 1e9);
+    assert!(gathered.abs_diff(many) * 20 <= many, "{gathered} {many}");
 }

@@ -227,6 +227,12 @@ impl<'a> Estimator<'a> {
         self
     }
 
+    /// Whether the gather rays per pixel ([`with_gather_rays`](Self::with_gather_rays)) decide
+    /// where final gathering runs (elsewhere it runs wherever the pass has gather rays).
+    pub fn weighs_gather_rays(&self) -> bool {
+        matches!(self, Estimator::Multiscale { .. })
+    }
+
     /// This pass's photon map.
     pub fn map(&self) -> &'a PhotonMap {
         match *self {

@@ -106,8 +106,27 @@ pub struct Costs {
     pub per_caustic_path: f64,
     /// Per camera sample without final gathering (all cameras' pixels counted).
     pub per_sample: f64,
-    /// Per final-gather ray.
+    /// Per final-gather ray, at the requested pass's [`Costs::photons_per_gather_ray`].
     pub per_gather_ray: f64,
+    /// Per final-gather ray at 2, 4, 8 and 16 times fewer global photons per gather ray than
+    /// `per_gather_ray`: the fewer they are, the more points final gathering supplies instead
+    /// of the photons ([`crate::estimate::multiscale::photons_suffice`]), and where a scene's
+    /// kernels hold alike counts the camera's cost jumps. The probe times gathering at the
+    /// fewest and prices each rung by the points that ask for it there (docs/time_budget.md,
+    /// "A camera pass priced by its photons per gather ray").
+    #[serde(default)]
+    pub per_gather_ray_sparser: [f64; GATHER_LADDER],
+    /// Global photon paths per gather ray per pixel (of a pass) at which `per_gather_ray` was
+    /// measured; 0: the same cost at any (an estimate that gathers wherever a pass has rays).
+    #[serde(default)]
+    pub photons_per_gather_ray: f64,
+    /// Global photon paths and gather rays per pixel of the passes already made: the next
+    /// passes' join them in the estimate.
+    #[serde(default)]
+    pub prior_photons: f64,
+    /// See `prior_photons`.
+    #[serde(default)]
+    pub prior_gather_rays: f64,
     /// Share of the stored photon power that caustic photons carry.
     #[serde(default)]
     pub caustic_share: f64,
@@ -136,6 +155,7 @@ impl Costs {
             per_caustic_path: self.per_caustic_path * photons,
             per_sample: self.per_sample * camera,
             per_gather_ray: self.per_gather_ray * camera,
+            per_gather_ray_sparser: self.per_gather_ray_sparser.map(|c| c * camera),
             ..*self
         }
     }
@@ -143,7 +163,29 @@ impl Costs {
     /// Predicted wall seconds of the camera samples and gather rays of a pass of `size`.
     pub fn camera_seconds(&self, size: &PassSize) -> f64 {
         let samples = self.pixels as f64 * size.spp as f64;
-        samples * (self.per_sample + size.gather as f64 * self.per_gather_ray)
+        samples * (self.per_sample + size.gather as f64 * self.gather_ray_seconds(size))
+    }
+
+    /// Predicted wall seconds of a final-gather ray in a pass of `size`: between the measured
+    /// rungs, linear in the logarithm of the photons per gather ray (the passes already made
+    /// counted), held beyond the ends.
+    pub fn gather_ray_seconds(&self, size: &PassSize) -> f64 {
+        let rays = self.prior_gather_rays + (size.spp * size.gather) as f64;
+        if !(self.photons_per_gather_ray > 0.0 && rays > 0.0) {
+            return self.per_gather_ray;
+        }
+        let share = (self.prior_photons + size.photons as f64) / rays / self.photons_per_gather_ray;
+        let rung = (-share.log2()).clamp(0.0, GATHER_LADDER as f64);
+        let cost = |i: usize| {
+            if i == 0 {
+                self.per_gather_ray
+            } else {
+                self.per_gather_ray_sparser[i - 1]
+            }
+        };
+        let i = (rung.floor() as usize).min(GATHER_LADDER - 1);
+        let t = rung - i as f64;
+        cost(i) + t * (cost(i + 1) - cost(i))
     }
 
     /// Predicted wall seconds of a pass of `size`.
@@ -151,6 +193,11 @@ impl Costs {
         self.per_pass + self.photon_seconds(size) + self.camera_seconds(size)
     }
 }
+
+/// Rungs the probe prices final gathering at beyond the requested pass's photons per gather
+/// ray, each with half the photons per ray of the one before ([`Costs::per_gather_ray_sparser`]):
+/// down to 1/16, the floor of a shrunk pass's global photons ([`PHOTON_FLOOR_SHARE`]).
+pub const GATHER_LADDER: usize = 4;
 
 /// Fewest photon paths a planned pass keeps (below this a photon map is mostly noise).
 pub const MIN_PATHS: usize = 20_000;
@@ -268,7 +315,8 @@ pub fn plan(costs: &Costs, left: f64, requested: PassSize, stage: Stage) -> Plan
 }
 
 /// `costs` corrected by what a pass of `size` measured: the photons' side (`photon_seconds`)
-/// and the camera's side (`camera_seconds`) each by its measured/predicted ratio.
+/// and the camera's side (`camera_seconds`) each by its measured/predicted ratio. The pass's
+/// photons and gather rays join those the next passes' gathering is priced with.
 pub fn corrected(costs: &Costs, size: &PassSize, photon_seconds: f64, camera_seconds: f64) -> Costs {
     let camera = costs.camera_seconds(size);
     let photons = costs.per_pass + costs.photon_seconds(size);
@@ -279,7 +327,11 @@ pub fn corrected(costs: &Costs, size: &PassSize, photon_seconds: f64, camera_sec
             1.0
         }
     };
-    costs.scaled(ratio(photon_seconds, photons), ratio(camera_seconds, camera))
+    Costs {
+        prior_photons: costs.prior_photons + size.photons as f64,
+        prior_gather_rays: costs.prior_gather_rays + (size.spp * size.gather) as f64,
+        ..costs.scaled(ratio(photon_seconds, photons), ratio(camera_seconds, camera))
+    }
 }
 
 /// Share of the time left that a last, smaller pass may be planned to take.
@@ -563,35 +615,37 @@ impl Fit<'_> {
         }
     }
 
-    /// Caustic photons first (down to `c_lo`) with the global ones at `g_lo`, then the global
-    /// ones in what is left.
+    /// Caustic photons first (down to `c_lo`) beside the global photons (at least `g_lo`) that
+    /// cost least with the camera's side, then the global ones in what is left. Not always
+    /// `g_lo`: fewer global photons make the camera's side dearer ([`Costs::gather_ray_seconds`]).
     fn caustics_first(&self, size: PassSize, g_lo: usize, c_lo: usize) -> PassSize {
-        let at_lo = PassSize {
-            photons: g_lo,
+        let hi = self.requested.photons;
+        let global = |x: f64| PassSize {
+            photons: ((hi as f64 * x).round() as usize).clamp(g_lo, hi.max(g_lo)),
             caustic_photons: 0,
             ..size
         };
-        let caustic = self.most(
-            self.costs.pass_seconds(&at_lo),
+        let x_lo = g_lo as f64 / hi.max(1) as f64;
+        let cheapest = shares_down_to(x_lo)
+            .map(|x| self.costs.pass_seconds(&global(x)))
+            .fold(f64::INFINITY, f64::min);
+        let caustic_photons = self.most(
+            cheapest,
             self.costs.per_caustic_path,
             c_lo,
             self.requested.caustic_photons,
         );
-        let without = PassSize {
-            photons: 0,
-            caustic_photons: caustic,
-            ..size
-        };
-        let photons = self.most(
-            self.costs.pass_seconds(&without),
-            self.costs.per_path,
-            g_lo,
-            self.requested.photons,
-        );
+        // Without the slack, as `most` fits the caustic photons.
+        let x = largest_fitting(x_lo, |x| {
+            let size = PassSize {
+                caustic_photons,
+                ..global(x)
+            };
+            self.costs.pass_seconds(&size) <= self.target
+        });
         PassSize {
-            photons,
-            caustic_photons: caustic,
-            ..size
+            caustic_photons,
+            ..global(x)
         }
     }
 
@@ -603,20 +657,50 @@ impl Fit<'_> {
             caustic_photons: ((r.caustic_photons as f64 * s).round() as usize).clamp(c_lo, r.caustic_photons.max(c_lo)),
             ..size
         };
-        if !self.over(&at(1.0)) {
-            return at(1.0);
-        }
-        let (mut lo, mut hi) = (0.0f64, 1.0f64);
-        for _ in 0..48 {
-            let mid = 0.5 * (lo + hi);
-            if self.over(&at(mid)) {
-                hi = mid;
-            } else {
-                lo = mid;
-            }
-        }
-        at(lo)
+        at(largest_fitting(LEAST_SHARE, |s| !self.over(&at(s))))
     }
+}
+
+/// Least share of the requested photons a pass is fitted at ([`shares_down_to`]): the floors
+/// lie above it ([`MIN_PATHS`] is a larger share of any pass with photons to shrink).
+const LEAST_SHARE: f64 = 1.0 / (1u64 << 24) as f64;
+
+/// Steps per halving of [`shares_down_to`].
+const SHARE_STEPS: f64 = 16.0;
+
+/// Shares of a pass's photons from 1 down to `lo` (at least [`LEAST_SHARE`]), in steps of
+/// 2^(−1/[`SHARE_STEPS`]), then `lo`.
+fn shares_down_to(lo: f64) -> impl Iterator<Item = f64> {
+    let lo = lo.clamp(LEAST_SHARE, 1.0);
+    (0..)
+        .map(|j| (-(j as f64) / SHARE_STEPS).exp2())
+        .take_while(move |&x| x > lo)
+        .chain(std::iter::once(lo))
+}
+
+/// The largest share in [`lo`, 1] for which `fits`, `lo` if none: the pass's seconds do not
+/// fall steadily with its photons (fewer make the camera's side dearer, [`Costs::gather_ray_seconds`]),
+/// so [`shares_down_to`] are tried from the top, then bisection between the first that fits and
+/// the one above it.
+fn largest_fitting(lo: f64, fits: impl Fn(f64) -> bool) -> f64 {
+    let mut above: Option<f64> = None;
+    for x in shares_down_to(lo) {
+        if fits(x) {
+            let Some(mut hi) = above else { return x };
+            let mut lo = x;
+            for _ in 0..48 {
+                let mid = 0.5 * (lo + hi);
+                if fits(mid) {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            return lo;
+        }
+        above = Some(x);
+    }
+    lo.clamp(LEAST_SHARE, 1.0)
 }
 
 #[cfg(test)]
@@ -660,6 +744,7 @@ mod tests {
             per_gather_ray: 1e-6,
             pixels: 640 * 480,
             probe_seconds: 0.1,
+            ..Costs::default()
         }
     }
 
@@ -966,6 +1051,97 @@ mod tests {
         assert_eq!(hopeless.size.paths(), MIN_PATHS);
     }
 
+    /// `costs()` with gathering as pool_caustic's probe measured it: a ray's cost jumps six
+    /// times between a quarter and an eighth of the requested photons per gather ray.
+    fn stepped() -> Costs {
+        let r = requested();
+        Costs {
+            per_gather_ray: 0.2e-6,
+            per_gather_ray_sparser: [0.2e-6, 0.2e-6, 1.2e-6, 1.2e-6],
+            photons_per_gather_ray: r.photons as f64 / (r.spp * r.gather) as f64,
+            ..costs()
+        }
+    }
+
+    #[test]
+    fn a_gather_ray_is_priced_by_the_photons_per_gather_ray() {
+        let c = stepped();
+        let at = |photons: usize, spp: u32| {
+            c.gather_ray_seconds(&PassSize {
+                photons,
+                spp,
+                ..requested()
+            })
+        };
+        let close = |a: f64, b: f64| (a / b - 1.0).abs() < 1e-9;
+        assert!(close(at(2_000_000, 4), 0.2e-6));
+        assert!(close(at(16_000_000, 4), 0.2e-6), "held above the requested photons");
+        assert!(close(at(250_000, 4), 1.2e-6), "an eighth");
+        assert!(close(at(1_000, 4), 1.2e-6), "held below a sixteenth");
+        // Halfway (in the logarithm) between a quarter and an eighth.
+        assert!((at((2e6 / 32f64.sqrt()).round() as usize, 4) / 0.7e-6 - 1.0).abs() < 1e-5);
+        // Fewer samples per pixel, fewer gather rays: the same photons go further.
+        assert!(close(at(250_000, 2), 0.2e-6));
+        // Old reports without the ladder price every pass alike.
+        let flat = Costs {
+            photons_per_gather_ray: 0.0,
+            ..c
+        };
+        assert!(close(
+            flat.gather_ray_seconds(&PassSize {
+                photons: 1_000,
+                ..requested()
+            }),
+            0.2e-6
+        ));
+        // A later pass's photons and rays join the first's (twice as many photons per ray).
+        let first = PassSize {
+            photons: 1_000_000,
+            ..requested()
+        };
+        let later = corrected(
+            &c,
+            &first,
+            c.per_pass + c.photon_seconds(&first),
+            c.camera_seconds(&first),
+        );
+        let after = PassSize {
+            photons: 125_000,
+            ..requested()
+        };
+        assert!(close(c.gather_ray_seconds(&after), 1.2e-6));
+        assert!(close(
+            later.gather_ray_seconds(&after),
+            c.gather_ray_seconds(&PassSize {
+                photons: 562_500,
+                ..after
+            })
+        ));
+    }
+
+    #[test]
+    fn a_shrunk_pass_keeps_its_global_photons_above_a_step_in_the_camera_cost() {
+        let c = stepped();
+        for left in [3.0, 4.0, 5.0, 6.0, 8.0] {
+            let p = plan(&c, left, requested(), Stage::First);
+            let target = left / PLANNED_PASSES;
+            assert!(p.predicted_pass_seconds <= target * 1.0001, "{p:?}");
+            let per_ray = p.size.photons as f64 / (p.size.spp * p.size.gather) as f64;
+            assert!(per_ray >= c.photons_per_gather_ray / 4.0, "below the step: {p:?}");
+            assert!(p.predicted_pass_seconds >= 0.95 * target, "the time is used: {p:?}");
+        }
+        // Priced alike at any photons, some of the same budgets go below the step.
+        let flat = Costs {
+            photons_per_gather_ray: 0.0,
+            ..c
+        };
+        let below = [3.0, 4.0, 5.0, 6.0, 8.0].into_iter().find(|&left| {
+            let p = plan(&flat, left, requested(), Stage::First).size;
+            p.photons as f64 / ((p.spp * p.gather) as f64) < c.photons_per_gather_ray / 4.0
+        });
+        assert!(below.is_some());
+    }
+
     #[test]
     fn a_later_pass_keeps_the_first_passs_gather_rays_while_fewer_photons_make_room() {
         let c = Costs {
@@ -1127,6 +1303,7 @@ mod tests {
             per_gather_ray: 9.686567447916666e-07,
             pixels: 307200,
             probe_seconds: 0.338,
+            ..Costs::default()
         };
         // Caustics carry 5 % of the light here: both kinds shrink alike (0.3 of the request).
         let exact = PassSize {

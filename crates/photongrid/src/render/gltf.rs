@@ -92,7 +92,7 @@ impl Tracer<'_> {
             &mut self.knn,
         );
         let mut l = density_radiance(albedo, e.flux, e.r2);
-        if e.needs_gathering && self.settings.gather > 0 {
+        if self.gathers(e.needs_gathering) {
             // A glossy stored lobe reflects gathered light as its BSDF says (not gated on the
             // one-sample albedo: a failed sample would drop the whole gather, a bias); the
             // diffuse base alone reflects the cosine-weighted mean.

@@ -18,7 +18,7 @@ use emitter_edges::EmitterEdges;
 use gather_lobe::GatherLobe;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Instant;
 
 pub mod budget;
@@ -97,6 +97,18 @@ struct Tracer<'a> {
     /// The pixel footprint's radius at the surface being shaded ([`Query::footprint`]; 0 past
     /// a mirror or glass, where it is not tracked).
     footprint: f32,
+    /// [`CameraPass::gathering_points`], and this tracer's count, added to it when dropped
+    /// (no shared counter in the shading loop).
+    gathering_points: Option<&'a AtomicU64>,
+    asked_to_gather: u64,
+}
+
+impl Drop for Tracer<'_> {
+    fn drop(&mut self) {
+        if let Some(n) = self.gathering_points {
+            n.fetch_add(self.asked_to_gather, Ordering::Relaxed);
+        }
+    }
 }
 
 /// The final-gather directions of one camera sample: points `base..base + gather` of its
@@ -144,7 +156,15 @@ impl<'a> Tracer<'a> {
             gather_points: GatherPoints::default(),
             camera: pass.camera,
             footprint: 0.0,
+            gathering_points: pass.gathering_points,
+            asked_to_gather: 0,
         }
+    }
+
+    /// Whether to gather at a point whose estimate asked for it (`asked`), counted.
+    fn gathers(&mut self, asked: bool) -> bool {
+        self.asked_to_gather += u64::from(asked);
+        asked && self.settings.gather > 0
     }
 }
 
@@ -171,6 +191,9 @@ pub struct CameraPass<'a> {
     pub camera: &'a Camera,
     /// Resolution, samples, seed.
     pub settings: &'a RenderSettings,
+    /// Counts the shading points whose estimate asks for final gathering, whether or not the
+    /// pass has gather rays (the time budget's probe: [`crate::pipeline::plan_passes`]).
+    pub gathering_points: Option<&'a AtomicU64>,
 }
 
 /// Render a camera pass into a film. `progress(rows)` is called as rows finish (each row once
@@ -394,7 +417,7 @@ impl Tracer<'_> {
             .gather(&query_at(sp, self.footprint), &mut self.knn);
         // Photons carry no direction here: a normal map's shadowing as for even light.
         l += density_radiance(albedo * bsdf::bump::mean_sample(sp, rng), g.flux, g.r2);
-        if g.needs_gathering && self.settings.gather > 0 {
+        if self.gathers(g.needs_gathering) {
             l += albedo * self.final_gather(sp, GatherLobe::Cosine, rng);
         }
         if let Some(a) = aov.take() {
