@@ -212,9 +212,14 @@ impl GridReport {
         let mut report = state.paper.as_ref().map(GridReport::of_paper).unwrap_or_default();
         if let Some(m) = &state.multiscale {
             report.choice.push(format!(
-                "multiscale: {} planes (mirrors and glass excluded), {:.1} MB",
+                "multiscale: {} planes (mirrors and glass excluded), {:.1} MB; {}",
                 m.textures.len(),
-                m.memory_bytes() as f64 / 1e6
+                m.memory_bytes() as f64 / 1e6,
+                if m.stratified {
+                    "every light is a point, spot or sun: direct and caustic photons land from stratified points (--stratified-ici-threshold)"
+                } else {
+                    "a light has area: direct and caustic photons land about as unevenly as independent ones (--ici-threshold, --caustic-ici-threshold)"
+                }
             ));
             report.choice.extend(m.describe());
             report.choice.extend(m.bright.as_ref().map(|b| b.describe()));
@@ -1035,6 +1040,7 @@ impl GridState {
                         photons_per_cell: settings.cell_photons,
                         max_radius: settings.max_radius * scene.bounds.diagonal(),
                         max_depth: settings.max_depth,
+                        stratified: scene.lights.iter().all(|l| l.is_delta()),
                         ..MultiscaleParams::default()
                     };
                     let probes = Probes {
@@ -1049,7 +1055,7 @@ impl GridState {
                 }
             };
             if settings.effective_gather() > 0 {
-                g.resolve_for_gathering(Gammas::of_settings(settings));
+                g.resolve_for_gathering(Gammas::of_settings(settings, g.stratified));
             }
         }
     }

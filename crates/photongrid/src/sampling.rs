@@ -58,6 +58,196 @@ impl Rng {
     }
 }
 
+/// Uniform numbers in [0, 1), one or two at a time: what emitting a photon draws from, so that
+/// the first numbers of a photon path can come from a low-discrepancy point ([`Stratified`])
+/// and the rest from its generator.
+pub trait Sampler {
+    /// One number.
+    fn uniform(&mut self) -> f32;
+    /// Two numbers meant as one 2D sample (a direction, a point on a disc).
+    fn uniform2(&mut self) -> Vec2;
+}
+
+impl Sampler for Rng {
+    #[inline]
+    fn uniform(&mut self) -> f32 {
+        Rng::uniform(self)
+    }
+
+    #[inline]
+    fn uniform2(&mut self) -> Vec2 {
+        Rng::uniform2(self)
+    }
+}
+
+/// Dimensions of the Sobol points that start photon paths.
+const SOBOL_DIMS: usize = 6;
+
+/// Joe and Kuo's direction numbers (new-joe-kuo-6.21201) for the Sobol sequence's dimensions
+/// 2 to [`SOBOL_DIMS`]: degree s of the primitive polynomial, its inner coefficients a, initial
+/// m₁…mₛ. Dimension 1 is van der Corput's.
+const JOE_KUO: [(usize, u32, [u32; 4]); SOBOL_DIMS - 1] = [
+    (1, 0, [1, 0, 0, 0]),
+    (2, 1, [1, 3, 0, 0]),
+    (3, 1, [1, 3, 1, 0]),
+    (3, 2, [1, 1, 1, 0]),
+    (4, 1, [1, 1, 3, 3]),
+];
+
+/// The generator matrices, one 32-bit direction number per bit of the index and dimension.
+const SOBOL: [[u32; 32]; SOBOL_DIMS] = sobol_matrices();
+
+const fn sobol_matrices() -> [[u32; 32]; SOBOL_DIMS] {
+    let mut v = [[0u32; 32]; SOBOL_DIMS];
+    let mut k = 0;
+    while k < 32 {
+        v[0][k] = 1 << (31 - k);
+        k += 1;
+    }
+    let mut d = 1;
+    while d < SOBOL_DIMS {
+        let (s, a, m) = JOE_KUO[d - 1];
+        let mut k = 0;
+        while k < 32 {
+            v[d][k] = if k < s {
+                m[k] << (31 - k)
+            } else {
+                let mut x = v[d][k - s] ^ (v[d][k - s] >> s);
+                let mut j = 1;
+                while j < s {
+                    if (a >> (s - 1 - j)) & 1 == 1 {
+                        x ^= v[d][k - j];
+                    }
+                    j += 1;
+                }
+                x
+            };
+            k += 1;
+        }
+        d += 1;
+    }
+    v
+}
+
+/// The Owen scrambles of one pass's [`Stratified`] points, one per dimension, from the pass's
+/// seed and stream.
+#[derive(Clone, Copy, Debug)]
+pub struct Scrambles([u32; SOBOL_DIMS]);
+
+impl Scrambles {
+    /// The scrambles of `(seed, stream)`.
+    pub fn new(seed: u64, stream: u64) -> Self {
+        let key = mix64(seed ^ mix64(stream ^ 0x534F_424F_4C00_0000));
+        Scrambles(std::array::from_fn(|d| mix64(key ^ d as u64) as u32))
+    }
+}
+
+/// The Sobol sequence's points in Gray-code order, from position `i` on: point i is the
+/// sequence's point i ⊕ (i >> 1), so each step flips one direction number per dimension
+/// instead of recomputing every bit. Every run of 2^m positions from a multiple of 2^m holds
+/// the same points as in the natural order, so a pass's photons are as stratified.
+#[derive(Clone, Debug)]
+pub struct SobolWalk {
+    position: u32,
+    point: [u32; SOBOL_DIMS],
+}
+
+impl SobolWalk {
+    /// The walk from position `position`.
+    pub fn from(position: u32) -> Self {
+        SobolWalk {
+            position,
+            point: sobol_point(position ^ (position >> 1), SOBOL_DIMS),
+        }
+    }
+
+    /// The point at the current position (unscrambled), then a step to the next position.
+    /// Positions wrap at 2³² (the sequence then starts again).
+    #[inline]
+    pub fn next_point(&mut self) -> SobolPoint {
+        let here = SobolPoint(self.point);
+        // Position i + 1's Gray code differs from i's in bit (trailing ones of i).
+        let k = (!self.position).trailing_zeros() as usize;
+        self.position = self.position.wrapping_add(1);
+        if k < 32 {
+            for (x, v) in self.point.iter_mut().zip(&SOBOL) {
+                *x ^= v[k];
+            }
+        } else {
+            self.point = [0; SOBOL_DIMS];
+        }
+        here
+    }
+}
+
+/// One unscrambled point of a [`SobolWalk`], as 32-bit fractions.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SobolPoint([u32; SOBOL_DIMS]);
+
+/// A photon path's first numbers from one Sobol point, Owen-scrambled (each dimension when it
+/// is asked for), then from the path's generator. Two-number requests take the dimension pairs
+/// (1, 2) and (4, 5), whose first pair is a (0, 2)-sequence, single ones dimensions 3 and 6:
+/// emitting a light's photons at stratified directions and positions spreads them far more
+/// evenly than independent draws, and where they reach a surface through smooth glass or
+/// mirrors they land as evenly, which is what a density estimate's noise comes from.
+pub struct Stratified<'a> {
+    point: SobolPoint,
+    scrambles: &'a Scrambles,
+    next1: usize,
+    next2: usize,
+    rng: &'a mut Rng,
+}
+
+/// The dimensions [`Stratified`] hands out as pairs, and one at a time.
+const PAIRS: [(usize, usize); 2] = [(0, 1), (3, 4)];
+const SINGLES: [usize; 2] = [2, 5];
+
+impl<'a> Stratified<'a> {
+    /// `point` scrambled by `scrambles`, then `rng`.
+    pub fn new(point: SobolPoint, scrambles: &'a Scrambles, rng: &'a mut Rng) -> Self {
+        Stratified {
+            point,
+            scrambles,
+            next1: 0,
+            next2: 0,
+            rng,
+        }
+    }
+
+    /// Dimension `d`, scrambled.
+    #[inline]
+    fn dimension(&self, d: usize) -> f32 {
+        unit(owen_scramble(self.point.0[d], self.scrambles.0[d]))
+    }
+}
+
+/// A 32-bit fixed-point fraction as a uniform in [0, 1).
+fn unit(v: u32) -> f32 {
+    (v >> 8) as f32 * (1.0 / 16_777_216.0)
+}
+
+impl Sampler for Stratified<'_> {
+    fn uniform(&mut self) -> f32 {
+        match SINGLES.get(self.next1) {
+            Some(&d) => {
+                self.next1 += 1;
+                self.dimension(d)
+            }
+            None => self.rng.uniform(),
+        }
+    }
+
+    fn uniform2(&mut self) -> Vec2 {
+        match PAIRS.get(self.next2) {
+            Some(&(a, b)) => {
+                self.next2 += 1;
+                Vec2::new(self.dimension(a), self.dimension(b))
+            }
+            None => self.rng.uniform2(),
+        }
+    }
+}
+
 /// The seed of progressive pass `pass` (0-based): pass 0 keeps `seed`, so a one-pass render is
 /// the plain render; later passes get unrelated streams for photons and camera paths (the pixels' sample
 /// positions continue one sequence across passes: [`pixel_sample`]).
@@ -94,8 +284,7 @@ pub mod stream {
 /// starts again).
 pub fn owen_sobol(index: u32, seed: u64) -> Vec2 {
     let x = owen_scramble(index.reverse_bits(), seed as u32);
-    let y = owen_scramble(sobol_second_dimension(index), (seed >> 32) as u32);
-    let unit = |v: u32| (v >> 8) as f32 * (1.0 / 16_777_216.0);
+    let y = owen_scramble(sobol_dimension(index, 1), (seed >> 32) as u32);
     Vec2::new(unit(x), unit(y))
 }
 
@@ -105,16 +294,23 @@ pub fn pixel_scramble(seed: u64, purpose: u64, pixel: u64) -> u64 {
     mix64(seed ^ mix64(purpose ^ pixel << 8))
 }
 
-/// The Sobol sequence's second dimension (primitive polynomial x + 1: direction numbers
-/// v₀ = 2³¹, vᵢ = vᵢ₋₁ ⊕ vᵢ₋₁ >> 1).
-fn sobol_second_dimension(mut index: u32) -> u32 {
-    let (mut v, mut x) = (1u32 << 31, 0u32);
-    while index != 0 {
-        if index & 1 == 1 {
-            x ^= v;
+/// Dimension `d` of point `index` of the (unscrambled) Sobol sequence, as a 32-bit fraction.
+fn sobol_dimension(index: u32, d: usize) -> u32 {
+    sobol_point(index, d + 1)[d]
+}
+
+/// The first `dims` dimensions of point `index` of the Sobol sequence (the rest left 0).
+fn sobol_point(index: u32, dims: usize) -> [u32; SOBOL_DIMS] {
+    let mut x = [0u32; SOBOL_DIMS];
+    let (mut i, mut k) = (index, 0);
+    while i != 0 {
+        if i & 1 == 1 {
+            for (x, v) in x.iter_mut().zip(&SOBOL).take(dims) {
+                *x ^= v[k];
+            }
         }
-        index >>= 1;
-        v ^= v >> 1;
+        i >>= 1;
+        k += 1;
     }
     x
 }
@@ -329,6 +525,97 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The first `n` points of the walk from 0, scrambled by `s`.
+    fn scrambled_points(n: u32, s: &Scrambles) -> Vec<[u32; SOBOL_DIMS]> {
+        let mut walk = SobolWalk::from(0);
+        (0..n)
+            .map(|_| {
+                let p = walk.next_point();
+                std::array::from_fn(|d| owen_scramble(p.0[d], s.0[d]))
+            })
+            .collect()
+    }
+
+    /// The smallest t for which the first 2^m photon emission points, projected on dimensions
+    /// `a` and `b`, are a (t, m, 2)-net: every elementary box of area 2^(t−m) holds 2^t.
+    fn net_t(a: usize, b: usize, m: u32, scrambles: &Scrambles) -> u32 {
+        let points = scrambled_points(1 << m, scrambles);
+        let top = |v: u32, bits: u32| if bits == 0 { 0 } else { (v >> (32 - bits)) as usize };
+        (0..=m)
+            .find(|&t| {
+                (0..=m - t).all(|i| {
+                    let j = m - t - i;
+                    let mut count = vec![0u32; 1 << (m - t)];
+                    for p in &points {
+                        count[top(p[a], i) << j | top(p[b], j)] += 1;
+                    }
+                    count.iter().all(|&c| c == 1 << t)
+                })
+            })
+            .unwrap()
+    }
+
+    #[test]
+    fn photon_emission_points_are_nets_in_the_pairs_they_are_used_as() {
+        for seed in [0, 1, 0xdead_beef] {
+            let s = Scrambles::new(seed, stream::CAUSTIC_PHOTONS);
+            for m in 0..=10 {
+                // Each dimension alone: one point per interval of 2^−m.
+                let points = scrambled_points(1 << m, &s);
+                for d in 0..SOBOL_DIMS {
+                    let mut strata: Vec<u64> = points.iter().map(|p| p[d] as u64 >> (32 - m)).collect();
+                    strata.sort();
+                    assert_eq!(strata, (0..1u64 << m).collect::<Vec<_>>(), "seed {seed} m {m} dim {d}");
+                }
+                // The first pair (a direction, a point on a disc) is a (0, 2)-sequence; a
+                // choice (the first single) with either coordinate of it is nearly as even.
+                assert_eq!(net_t(PAIRS[0].0, PAIRS[0].1, m, &s), 0, "seed {seed} m {m}");
+                for d in [PAIRS[0].0, PAIRS[0].1] {
+                    assert!(net_t(SINGLES[0], d, m, &s) <= 1, "seed {seed} m {m} dim {d}");
+                }
+                // The second pair (a spot's retry, an emitter's direction) is a weaker net: 2^t
+                // points per box of area 2^(t−m), where independent points have t near m.
+                assert!(net_t(PAIRS[1].0, PAIRS[1].1, m, &s) <= 3, "seed {seed} m {m}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_walk_visits_the_gray_code_points_from_anywhere() {
+        for start in [0u32, 1, 2047, 2048, 1_000_003, u32::MAX - 2] {
+            let mut walk = SobolWalk::from(start);
+            for k in 0..40u32 {
+                let i = start.wrapping_add(k);
+                assert_eq!(
+                    walk.next_point().0,
+                    sobol_point(i ^ (i >> 1), SOBOL_DIMS),
+                    "{start} + {k}"
+                );
+            }
+        }
+        // The second dimension is the one the pixels' samples use.
+        assert_eq!(sobol_dimension(0b1011, 1), sobol_point(0b1011, 2)[1]);
+    }
+
+    #[test]
+    fn emission_points_hand_out_pairs_and_singles_then_the_generator() {
+        let s = Scrambles::new(3, stream::PHOTONS);
+        let mut rng = Rng::keyed(3, 4, 5);
+        let mut after = rng.clone();
+        let point = SobolWalk::from(77).next_point();
+        let p: [f32; SOBOL_DIMS] = std::array::from_fn(|d| unit(owen_scramble(point.0[d], s.0[d])));
+        let mut x = Stratified::new(point, &s, &mut rng);
+        assert_eq!(x.uniform2(), Vec2::new(p[0], p[1]));
+        assert_eq!(x.uniform(), p[2]);
+        assert_eq!(x.uniform2(), Vec2::new(p[3], p[4]));
+        assert_eq!(x.uniform(), p[5]);
+        assert_eq!(x.uniform(), after.uniform());
+        assert_eq!(x.uniform2(), after.uniform2());
+        // Another pass's scrambles move every dimension.
+        let t = Scrambles::new(4, stream::PHOTONS);
+        assert!((0..SOBOL_DIMS).all(|d| owen_scramble(point.0[d], s.0[d]) != owen_scramble(point.0[d], t.0[d])));
     }
 
     #[test]

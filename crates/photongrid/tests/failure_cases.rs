@@ -938,14 +938,17 @@ fn docs(report: &Report) -> String {
          dark cells (no direct or caustic photon where the light around says dozens should be), \
          so it divides light by the surface it falls on, and it takes a direct-light cell on a \
          shadow's edge as lit by the share its photons' flux says against the cells around it: \
-         every edge band within ±0.6 % of the truth, within about one standard error of it \
-         (48 seeds): +0.35 % ± 0.53 % within 2 cm of a corner's wall, +0.43 % ± 0.56 % within \
-         2 cm of a step's nose, −0.51 % ± 0.52 % on the lit side of a shadow edge, −0.13 % ± \
-         0.42 % beside the empty region's wall; no leak, a shadow edge as wide as the truth. \
-         (Twelve seeds had put the corner at +3.1 % ± 1.1 %; 120 seeds give +0.9 % ± 0.4 % \
-         within 2 cm and +0.6 % ± 0.2 % at 2–6 cm: a small bias, under 2 %.) Direct-light kernels stop \
-         at a wall only where the plane runs on behind it, so at a corner they widen up to the \
-         wall: per-pixel σ within 2 cm of it 8 % (kNN k = 100: 8 %), 6 % at 2–6 cm (kNN: 10 %).\n\
+         every edge band within ±0.9 % of the truth (48 seeds): +0.82 % ± 0.07 % within 2 cm \
+         of a corner's wall, +0.45 % ± 0.06 % within 2 cm of a step's nose, +0.58 % ± 0.24 % on \
+         the lit side of a shadow edge, +0.07 % ± 0.11 % beside the empty region's wall; no \
+         leak, a shadow edge as wide as the truth. (Before photons were emitted from \
+         stratified points, twelve seeds had put the corner at +3.1 % ± 1.1 % and 120 seeds at \
+         +0.9 % ± 0.4 % within 2 cm.) Direct-light kernels stop at a wall only where the plane \
+         runs on behind it, so at a corner they widen up to the wall: per-pixel σ within 2 cm \
+         of it 2.3 % (kNN k = 100: 1.3 %), 0.8 % at 2–6 cm (kNN: 1.5 %).\n\
+         - **Photons from stratified points** (every light here is a point light or a sun): the \
+         spread across seeds is that of the emission points' scrambles, far below independent \
+         photons' (kNN k = 100's per-pixel σ on a shadow edge's lit band was 9.7 %, now 1.4 %).\n\
          - **Shadows and walls leak**: the gather reaches photons of the same orientation on the \
          other side of an occluder (same plane, same normal), so light spreads into the shadow by \
          about the gather radius and reaches, ever weaker, up to the largest gather radius \

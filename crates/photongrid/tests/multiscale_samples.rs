@@ -104,3 +104,23 @@ fn aimed_gather_rays_keep_the_light_and_lower_the_noise() {
         "seed-to-seed RMS difference: {noise_aimed} with aimed rays, {noise_spread} without"
     );
 }
+
+#[test]
+fn the_grids_know_when_direct_and_caustic_photons_land_from_stratified_points() {
+    // cornell_glass has a point light; cornell_area only an emitting quad, whose photons take
+    // four numbers each and get the Poisson widths.
+    let settings = Settings {
+        photons: 5_000,
+        caustic_photons: 5_000,
+        width: Some(8),
+        height: Some(6),
+        gather: 1,
+        ..Settings::default()
+    };
+    for (name, stratified) in [("cornell_glass.glb", true), ("cornell_area.glb", false)] {
+        let scene = photongrid::load(&photongrid_testkit::repo_root().join("samples").join(name)).unwrap();
+        let prepared = prepare(&scene, &settings, &Progress::quiet(), &mut PhaseTimes::default()).unwrap();
+        let grids = prepared.grids.multiscale.as_ref().expect("multiscale grids");
+        assert_eq!(grids.stratified, stratified, "{name}");
+    }
+}

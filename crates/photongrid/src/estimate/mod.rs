@@ -197,7 +197,7 @@ impl<'a> Estimator<'a> {
                 map,
                 grids: grids.multiscale,
                 k,
-                gamma: Gammas::of_settings(settings),
+                gamma: Gammas::of_settings(settings, grids.multiscale.is_some_and(|g| g.stratified)),
                 direct: settings.direct == crate::settings::DirectLighting::Photons,
                 gathering: settings.effective_gather() > 0,
                 gather_rays: settings.spp as f32 * settings.effective_gather() as f32,

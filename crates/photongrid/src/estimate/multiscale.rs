@@ -231,32 +231,42 @@ pub fn poisson_variance(e: f32, photon_power: f32, area_passes: f32) -> f32 {
     (e.max(0.0) * photon_power / area_passes.max(1e-30)).max(0.0)
 }
 
-/// The confidence-interval widths (standard deviations) of the scale choice: caustics are
-/// filaments and sharp outlines, where a narrower interval keeps them sharp and costs less
-/// than it does in smooth global light.
+/// The confidence-interval widths (standard deviations of a Poisson count) of the scale
+/// choice: caustics are filaments and sharp outlines, where a narrower interval keeps them
+/// sharp and costs less than it does in smooth global light; photons that land from
+/// stratified points scatter less than a Poisson count, so theirs is narrower still.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Gammas {
-    /// Direct and indirect layers.
+    /// Indirect layers.
     pub global: f32,
+    /// The direct layer.
+    pub direct: f32,
     /// The caustic layer.
     pub caustic: f32,
 }
 
 impl Gammas {
-    /// The widths `settings` ask for.
-    pub fn of_settings(settings: &crate::Settings) -> Self {
+    /// The widths `settings` ask for, for grids whose direct and caustic photons land from
+    /// stratified points or not ([`MultiscaleGrids::stratified`]).
+    pub fn of_settings(settings: &crate::Settings, stratified: bool) -> Self {
+        let (direct, caustic) = if stratified {
+            (settings.stratified_ici_threshold, settings.stratified_ici_threshold)
+        } else {
+            (settings.ici_threshold, settings.caustic_ici_threshold)
+        };
         Gammas {
             global: settings.ici_threshold,
-            caustic: settings.caustic_ici_threshold,
+            direct,
+            caustic,
         }
     }
 
     /// The width for photon layer `layer`.
     pub fn of(self, layer: usize) -> f32 {
-        if layer == CAUSTIC {
-            self.caustic
-        } else {
-            self.global
+        match layer {
+            CAUSTIC => self.caustic,
+            DIRECT => self.direct,
+            _ => self.global,
         }
     }
 }
@@ -779,6 +789,19 @@ mod tests {
     }
 
     #[test]
+    fn photons_from_stratified_points_take_their_own_width_in_the_direct_and_caustic_layers() {
+        let s = crate::Settings {
+            ici_threshold: 2.0,
+            caustic_ici_threshold: 1.0,
+            stratified_ici_threshold: 0.25,
+            ..Default::default()
+        };
+        let widths = |g: Gammas| [CAUSTIC, INDIRECT, DIRECT, TAIL].map(|l| g.of(l));
+        assert_eq!(widths(Gammas::of_settings(&s, true)), [0.25, 2.0, 0.25, 2.0]);
+        assert_eq!(widths(Gammas::of_settings(&s, false)), [1.0, 2.0, 2.0, 2.0]);
+    }
+
+    #[test]
     fn the_photons_indirect_estimate_needs_more_photons_where_it_is_more_of_the_light() {
         let n = 1.0 / (INDIRECT_NOISE * INDIRECT_NOISE);
         let no_rays = f32::INFINITY;
@@ -892,6 +915,7 @@ mod tests {
         let power = Rgb::splat(4.0 / n as f32);
         let gammas = Gammas {
             global: 2.0,
+            direct: 2.0,
             caustic: 2.0,
         };
         let q = Query {
@@ -931,6 +955,7 @@ mod tests {
         });
         let gammas = Gammas {
             global: 2.0,
+            direct: 2.0,
             caustic: 2.0,
         };
         g.resolve_for_gathering(gammas);
@@ -963,6 +988,7 @@ mod tests {
         });
         let gammas = Gammas {
             global: 2.0,
+            direct: 2.0,
             caustic: 2.0,
         };
         for q in [
@@ -1059,6 +1085,7 @@ mod tests {
         });
         let gammas = Gammas {
             global: 2.0,
+            direct: 2.0,
             caustic: 2.0,
         };
         let mut sum = 0.0;
@@ -1096,6 +1123,7 @@ mod tests {
         let (g, floor) = flat_caustic(3);
         let gammas = Gammas {
             global: 2.0,
+            direct: 2.0,
             caustic: 1.0,
         };
         let t = &g.textures[0];
@@ -1139,6 +1167,7 @@ mod tests {
     fn a_chance_stop_in_flat_indirect_light_takes_its_neighbours_scale() {
         let gammas = Gammas {
             global: 2.0,
+            direct: 2.0,
             caustic: 1.0,
         };
         let flat = indirect_square(8, |rng| Some(p(2.0 * rng.uniform(), 2.0 * rng.uniform())));
@@ -1268,6 +1297,7 @@ mod tests {
         let map = PhotonMap::build(photons, 100, 4.0, 0.5);
         let gammas = Gammas {
             global: 2.0,
+            direct: 2.0,
             caustic: 1.25,
         };
         let read = |x: f32, finer: bool| -> f32 {
@@ -1333,6 +1363,7 @@ mod tests {
         });
         let gammas = Gammas {
             global: 2.0,
+            direct: 2.0,
             caustic: 2.0,
         };
         let read = |x: f32| {
@@ -1380,6 +1411,7 @@ mod tests {
         });
         let gamma = Gammas {
             global: 2.0,
+            direct: 2.0,
             caustic: 1.25,
         };
         for q in [p(1.0, 1.0), p(0.3, 1.7), p(1.99, 0.01)] {

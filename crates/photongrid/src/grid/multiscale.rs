@@ -897,6 +897,10 @@ pub struct MultiscaleParams {
     /// Longest path, in segments (`--max-depth`; 0: unlimited): sorts photons too deep for
     /// final gathering into [`TAIL`].
     pub max_depth: u32,
+    /// Every light is a point, spot or sun, so each direct and caustic photon lands where
+    /// two numbers of a stratified point put it ([`crate::sampling::Stratified`]): those
+    /// layers' counts scatter far less than Poisson's.
+    pub stratified: bool,
 }
 
 impl Default for MultiscaleParams {
@@ -907,6 +911,7 @@ impl Default for MultiscaleParams {
             max_resolution: 2048,
             max_radius: f32::INFINITY,
             max_depth: 0,
+            stratified: false,
         }
     }
 }
@@ -939,6 +944,8 @@ pub struct MultiscaleGrids {
     pub max_radius: f32,
     /// Longest path in segments ([`MultiscaleParams::max_depth`]).
     pub max_depth: u32,
+    /// Its direct and caustic photons land from stratified points ([`MultiscaleParams::stratified`]).
+    pub stratified: bool,
     /// The factor by which every fine cell grew to fit the cell budget (`--grid-cells`; 1
     /// when the photons' sizes fit).
     pub cells_grown: f32,
@@ -1172,6 +1179,7 @@ impl MultiscaleGrids {
             global_power: 0.0,
             max_radius: params.max_radius,
             max_depth: params.max_depth,
+            stratified: params.stratified,
             cells_grown,
             bright: None,
         };

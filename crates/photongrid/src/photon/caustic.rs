@@ -5,7 +5,7 @@
 //! Several cones (or sun discs) may overlap; a photon's flux divides by the density of the
 //! whole mixture at its direction (one-sample balance heuristic), which keeps it unbiased.
 
-use crate::sampling::{self, Distribution, Rng};
+use crate::sampling::{self, Distribution, Sampler};
 use crate::scene::light::{pick_emitter, Emission};
 use crate::scene::{Light, Scene};
 use glam::Vec3;
@@ -120,7 +120,7 @@ impl SpecularTargets {
 
     /// Sample a photon from `light` towards the targets, aimed as `aim` (`self.aim(light)`)
     /// says. Its `flux` has the light's power restricted to the targets as expectation.
-    pub fn emit(&self, light: &Light, aim: &Aim, rng: &mut Rng) -> Option<Emission> {
+    pub fn emit(&self, light: &Light, aim: &Aim, rng: &mut impl Sampler) -> Option<Emission> {
         match (light, aim) {
             (Light::Point { position, .. } | Light::Spot { position, .. }, Aim::Cones(cones)) => {
                 let (d, pdf) = cones.sample(rng)?;
@@ -237,7 +237,7 @@ fn solid_angle(cos_max: f32) -> f32 {
 impl Cones {
     /// A direction uniform within one cone, the cone chosen in proportion to its solid angle,
     /// with the mixture's solid-angle density.
-    fn sample(&self, rng: &mut Rng) -> Option<(Vec3, f32)> {
+    fn sample(&self, rng: &mut impl Sampler) -> Option<(Vec3, f32)> {
         if !(self.choice.total() > 0.0) {
             return None;
         }
@@ -256,6 +256,7 @@ impl Cones {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::sampling::Rng;
     use crate::Rgb;
 
     #[test]

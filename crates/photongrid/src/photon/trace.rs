@@ -5,7 +5,7 @@ use super::caustic::SpecularTargets;
 use super::store::{Photon, PhotonKind};
 use crate::accel::{ClosestHit, Origin};
 use crate::bsdf;
-use crate::sampling::{self, stream, Rng};
+use crate::sampling::{self, stream, Rng, Sampler, Scrambles, SobolWalk, Stratified};
 use crate::scene::light::LightSampler;
 use crate::scene::material::MetallicRoughness;
 use crate::scene::{Scene, Surface};
@@ -63,7 +63,9 @@ struct Pass {
 }
 
 /// Trace `pass.paths` paths in parallel chunks, appending their photons to `all` in path
-/// order; photon `i` uses its own keyed random stream. The chunks run in waves of [`WAVE`]; a
+/// order; photon `i` is emitted from position `i` of the pass's
+/// scrambled Sobol sequence in Gray-code order ([`SobolWalk`], [`Stratified`]), then follows
+/// its own keyed random stream. The chunks run in waves of [`WAVE`]; a
 /// wave's photons are appended while the next wave is traced (one thread appends, then joins
 /// the tracing): the photons exist once, plus two waves' buffers (collecting every chunk first
 /// held them twice), and no thread waits for the appending.
@@ -73,11 +75,12 @@ fn run_pass(
     settings: &TraceSettings,
     pass: &Pass,
     progress: &(dyn Fn(usize) + Sync),
-    emit: &(dyn Fn(&mut Rng) -> Option<(crate::scene::light::Emission, f32)> + Sync),
+    emit: &(dyn Fn(&mut Stratified) -> Option<(crate::scene::light::Emission, f32)> + Sync),
     all: &mut PassOutput,
 ) {
     let n = pass.paths;
     let chunks = n.div_ceil(CHUNK);
+    let scrambles = Scrambles::new(settings.seed, pass.stream);
     let trace_chunk = |c: usize| {
         let mut out = Out {
             photons: Vec::with_capacity(CHUNK * 2),
@@ -87,9 +90,11 @@ fn run_pass(
             kinds: PhotonStats::default(),
         };
         let end = ((c + 1) * CHUNK).min(n);
+        let mut walk = SobolWalk::from((c * CHUNK) as u32);
         for i in c * CHUNK..end {
             let mut rng = Rng::keyed(settings.seed, pass.stream, i as u64);
-            if let Some((e, p_light)) = emit(&mut rng) {
+            let emitted = emit(&mut Stratified::new(walk.next_point(), &scrambles, &mut rng));
+            if let Some((e, p_light)) = emitted {
                 let power = e.flux / (p_light * n as f32);
                 let ray = (e.origin.into(), e.direction, power);
                 trace_path(scene, accel, settings, pass.kind, ray, &mut rng, &mut out);
@@ -224,7 +229,7 @@ pub fn trace_photons(
         SpecularTargets::default()
     };
     let caustic_pass = !targets.is_empty();
-    let pick_light = |rng: &mut Rng| lights.sample(rng.uniform());
+    let pick_light = |rng: &mut Stratified| lights.sample(rng.uniform());
     // The global pass; when the caustic pass runs, it owns every light → specular → diffuse
     // photon and the global pass must not store them too.
     let n = settings.photons;

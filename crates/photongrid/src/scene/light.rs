@@ -2,7 +2,7 @@
 //! gives direct illumination for shadow rays.
 
 use super::units;
-use crate::sampling::{self, Distribution, Rng};
+use crate::sampling::{self, Distribution, Rng, Sampler};
 use crate::Rgb;
 use glam::{Vec2, Vec3};
 use std::f32::consts::PI;
@@ -229,7 +229,7 @@ impl Light {
     }
 
     /// Sample a photon leaving the light.
-    pub fn emit(&self, rng: &mut Rng) -> Emission {
+    pub fn emit(&self, rng: &mut impl Sampler) -> Emission {
         match self {
             Light::Point { position, .. } => Emission {
                 origin: *position,
@@ -448,6 +448,41 @@ mod tests {
         let expected = (1.0 - cos_inner_full) / ((1.0 - cos_outer) * (1.0 - 0.25));
         let got = inner as f32 / n as f32;
         assert!((got - expected).abs() < 0.005, "{got} vs {expected}");
+    }
+
+    #[test]
+    fn stratified_emission_spreads_photons_evenly() {
+        // A point light's photons counted in 16 × 16 cells of equal solid angle (cosθ, φ): from
+        // scrambled Sobol points each cell holds its share exactly; from independent draws the
+        // counts scatter as Poisson's (variance ≈ mean).
+        let l = Light::Point {
+            name: "p".into(),
+            position: Vec3::ZERO,
+            intensity: Rgb::ONE,
+        };
+        let n = 1u32 << 14;
+        let cell = |d: Vec3| {
+            let (z, phi) = (d.z, d.y.atan2(d.x).rem_euclid(2.0 * PI));
+            let row = (((1.0 - z) / 2.0 * 16.0) as usize).min(15);
+            let col = ((phi / (2.0 * PI) * 16.0) as usize).min(15);
+            row * 16 + col
+        };
+        let variance_over_mean = |counts: &[u32]| {
+            let mean = n as f64 / 256.0;
+            let var = counts.iter().map(|&c| (c as f64 - mean).powi(2)).sum::<f64>() / 256.0;
+            var / mean
+        };
+        let scrambles = sampling::Scrambles::new(5, sampling::stream::PHOTONS);
+        let mut walk = sampling::SobolWalk::from(0);
+        let (mut even, mut random) = (vec![0u32; 256], vec![0u32; 256]);
+        for i in 0..n {
+            let mut rng = Rng::keyed(5, 1, i as u64);
+            random[cell(l.emit(&mut rng).direction)] += 1;
+            let mut s = sampling::Stratified::new(walk.next_point(), &scrambles, &mut rng);
+            even[cell(l.emit(&mut s).direction)] += 1;
+        }
+        assert!(variance_over_mean(&even) < 0.05, "{}", variance_over_mean(&even));
+        assert!(variance_over_mean(&random) > 0.6, "{}", variance_over_mean(&random));
     }
 
     #[test]
