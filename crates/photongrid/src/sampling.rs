@@ -154,10 +154,10 @@ pub struct SobolWalk {
 
 impl SobolWalk {
     /// The walk from position `position`.
-    pub fn from(position: u32) -> Self {
+    pub fn starting_at(position: u32) -> Self {
         SobolWalk {
             position,
-            point: sobol_point(position ^ (position >> 1), SOBOL_DIMS),
+            point: sobol_point(position ^ (position >> 1)),
         }
     }
 
@@ -198,8 +198,10 @@ pub struct Stratified<'a> {
     rng: &'a mut Rng,
 }
 
-/// The dimensions [`Stratified`] hands out as pairs, and one at a time.
+/// The dimensions [`Stratified`] hands out as pairs, best first.
 const PAIRS: [(usize, usize); 2] = [(0, 1), (3, 4)];
+/// The dimensions [`Stratified`] hands out one at a time: the first is even with either
+/// coordinate of the first pair (t ≤ 1), which a light's or a target's choice needs.
 const SINGLES: [usize; 2] = [2, 5];
 
 impl<'a> Stratified<'a> {
@@ -295,24 +297,21 @@ pub fn pixel_scramble(seed: u64, purpose: u64, pixel: u64) -> u64 {
 }
 
 /// Dimension `d` of point `index` of the (unscrambled) Sobol sequence, as a 32-bit fraction.
-fn sobol_dimension(index: u32, d: usize) -> u32 {
-    sobol_point(index, d + 1)[d]
-}
-
-/// The first `dims` dimensions of point `index` of the Sobol sequence (the rest left 0).
-fn sobol_point(index: u32, dims: usize) -> [u32; SOBOL_DIMS] {
-    let mut x = [0u32; SOBOL_DIMS];
-    let (mut i, mut k) = (index, 0);
-    while i != 0 {
-        if i & 1 == 1 {
-            for (x, v) in x.iter_mut().zip(&SOBOL).take(dims) {
-                *x ^= v[k];
-            }
+fn sobol_dimension(mut index: u32, d: usize) -> u32 {
+    let (mut x, mut k) = (0, 0);
+    while index != 0 {
+        if index & 1 == 1 {
+            x ^= SOBOL[d][k];
         }
-        i >>= 1;
+        index >>= 1;
         k += 1;
     }
     x
+}
+
+/// Point `index` of the Sobol sequence, every dimension.
+fn sobol_point(index: u32) -> [u32; SOBOL_DIMS] {
+    std::array::from_fn(|d| sobol_dimension(index, d))
 }
 
 /// Nested uniform (Owen) scrambling of the bits of `x`: each bit is flipped by a hash of `seed`
@@ -529,7 +528,7 @@ mod tests {
 
     /// The first `n` points of the walk from 0, scrambled by `s`.
     fn scrambled_points(n: u32, s: &Scrambles) -> Vec<[u32; SOBOL_DIMS]> {
-        let mut walk = SobolWalk::from(0);
+        let mut walk = SobolWalk::starting_at(0);
         (0..n)
             .map(|_| {
                 let p = walk.next_point();
@@ -585,18 +584,23 @@ mod tests {
     #[test]
     fn the_walk_visits_the_gray_code_points_from_anywhere() {
         for start in [0u32, 1, 2047, 2048, 1_000_003, u32::MAX - 2] {
-            let mut walk = SobolWalk::from(start);
+            let mut walk = SobolWalk::starting_at(start);
             for k in 0..40u32 {
                 let i = start.wrapping_add(k);
-                assert_eq!(
-                    walk.next_point().0,
-                    sobol_point(i ^ (i >> 1), SOBOL_DIMS),
-                    "{start} + {k}"
-                );
+                assert_eq!(walk.next_point().0, sobol_point(i ^ (i >> 1)), "{start} + {k}");
             }
         }
-        // The second dimension is the one the pixels' samples use.
-        assert_eq!(sobol_dimension(0b1011, 1), sobol_point(0b1011, 2)[1]);
+        // The second dimension, which the pixels' samples use, is the closed form they used
+        // before the table (polynomial x + 1: v₀ = 2³¹, vᵢ = vᵢ₋₁ ⊕ vᵢ₋₁ >> 1).
+        for i in (0..5000u32).chain([u32::MAX, 0x8000_0001]) {
+            let (mut v, mut x, mut j) = (1u32 << 31, 0u32, i);
+            while j != 0 {
+                x ^= if j & 1 == 1 { v } else { 0 };
+                j >>= 1;
+                v ^= v >> 1;
+            }
+            assert_eq!(sobol_dimension(i, 1), x, "{i}");
+        }
     }
 
     #[test]
@@ -604,7 +608,7 @@ mod tests {
         let s = Scrambles::new(3, stream::PHOTONS);
         let mut rng = Rng::keyed(3, 4, 5);
         let mut after = rng.clone();
-        let point = SobolWalk::from(77).next_point();
+        let point = SobolWalk::starting_at(77).next_point();
         let p: [f32; SOBOL_DIMS] = std::array::from_fn(|d| unit(owen_scramble(point.0[d], s.0[d])));
         let mut x = Stratified::new(point, &s, &mut rng);
         assert_eq!(x.uniform2(), Vec2::new(p[0], p[1]));

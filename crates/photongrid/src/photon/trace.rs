@@ -63,10 +63,9 @@ struct Pass {
 }
 
 /// Trace `pass.paths` paths in parallel chunks, appending their photons to `all` in path
-/// order; photon `i` is emitted from position `i` of the pass's
-/// scrambled Sobol sequence in Gray-code order ([`SobolWalk`], [`Stratified`]), then follows
-/// its own keyed random stream. The chunks run in waves of [`WAVE`]; a
-/// wave's photons are appended while the next wave is traced (one thread appends, then joins
+/// order; photon `i` is emitted from position `i` of the pass's scrambled Sobol sequence in
+/// Gray-code order ([`SobolWalk`], [`Stratified`]), then follows its own keyed random stream.
+/// The chunks run in waves of [`WAVE`]; a wave's photons are appended while the next wave is traced (one thread appends, then joins
 /// the tracing): the photons exist once, plus two waves' buffers (collecting every chunk first
 /// held them twice), and no thread waits for the appending.
 fn run_pass(
@@ -90,7 +89,7 @@ fn run_pass(
             kinds: PhotonStats::default(),
         };
         let end = ((c + 1) * CHUNK).min(n);
-        let mut walk = SobolWalk::from((c * CHUNK) as u32);
+        let mut walk = SobolWalk::starting_at((c * CHUNK) as u32);
         for i in c * CHUNK..end {
             let mut rng = Rng::keyed(settings.seed, pass.stream, i as u64);
             let emitted = emit(&mut Stratified::new(walk.next_point(), &scrambles, &mut rng));

@@ -473,7 +473,7 @@ mod tests {
             var / mean
         };
         let scrambles = sampling::Scrambles::new(5, sampling::stream::PHOTONS);
-        let mut walk = sampling::SobolWalk::from(0);
+        let mut walk = sampling::SobolWalk::starting_at(0);
         let (mut even, mut random) = (vec![0u32; 256], vec![0u32; 256]);
         for i in 0..n {
             let mut rng = Rng::keyed(5, 1, i as u64);
