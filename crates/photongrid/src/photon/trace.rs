@@ -65,9 +65,10 @@ struct Pass {
 /// Trace `pass.paths` paths in parallel chunks, appending their photons to `all` in path
 /// order; photon `i` is emitted from position `i` of the pass's scrambled Sobol sequence in
 /// Gray-code order ([`SobolWalk`], [`Stratified`]), then follows its own keyed random stream.
-/// The chunks run in waves of [`WAVE`]; a wave's photons are appended while the next wave is traced (one thread appends, then joins
-/// the tracing): the photons exist once, plus two waves' buffers (collecting every chunk first
-/// held them twice), and no thread waits for the appending.
+/// The chunks run in waves of [`WAVE`]; a wave's photons are appended while the next wave is
+/// traced (one thread appends, then joins the tracing): the photons exist once, plus two
+/// waves' buffers (collecting every chunk first held them twice), and no thread waits for the
+/// appending.
 fn run_pass(
     scene: &Scene,
     accel: &impl ClosestHit,
