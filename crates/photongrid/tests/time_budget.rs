@@ -42,6 +42,13 @@ fn small() -> Settings {
     }
 }
 
+/// cornell_glass with [`small`] settings and its first pass's photons, for one camera pass.
+fn prepared_small() -> (photongrid::scene::Scene, Settings, photongrid::pipeline::Prepared) {
+    let (scene, settings) = (scene(), small());
+    let prepared = photongrid::prepare(&scene, &settings, &Progress::quiet(), &mut Default::default()).unwrap();
+    (scene, settings, prepared)
+}
+
 #[test]
 fn a_budget_sizes_passes_from_a_probe_and_says_why() {
     let scene = scene();
@@ -135,9 +142,7 @@ fn a_budget_already_spent_still_gives_one_complete_pass_and_no_more() {
 fn a_camera_pass_past_its_deadline_keeps_its_required_sweeps_only() {
     use photongrid::estimate::Estimator;
     use photongrid::render::{render, render_until, CameraPass, Cut, PhotonData};
-    let scene = scene();
-    let settings = small();
-    let prepared = photongrid::prepare(&scene, &settings, &Progress::quiet(), &mut Default::default()).unwrap();
+    let (scene, settings, prepared) = prepared_small();
     let surfaces = photongrid::estimate::Surfaces::new(&scene, &prepared.accel, &settings);
     let input = PhotonData {
         estimator: Estimator::for_pass(&settings, 0, &prepared.map, prepared.grids.view(), &surfaces),
@@ -176,9 +181,7 @@ fn the_points_that_ask_for_gathering_are_counted_with_or_without_gather_rays() {
     use photongrid::estimate::Estimator;
     use photongrid::render::{render, CameraPass, PhotonData};
     use std::sync::atomic::{AtomicU64, Ordering};
-    let scene = scene();
-    let settings = small();
-    let prepared = photongrid::prepare(&scene, &settings, &Progress::quiet(), &mut Default::default()).unwrap();
+    let (scene, settings, prepared) = prepared_small();
     let surfaces = photongrid::estimate::Surfaces::new(&scene, &prepared.accel, &settings);
     let estimator = Estimator::for_pass(&settings, 0, &prepared.map, prepared.grids.view(), &surfaces);
     assert!(estimator.weighs_gather_rays(), "the default estimate");
