@@ -251,6 +251,30 @@ pub fn sample_specular(surface: &Surface, d: Vec3, sp: &SurfacePoint, distance: 
     })
 }
 
+/// Both Fresnel branches of a photon at a mirror or glass, with absorption inside glass: the
+/// likelier branch carries its own weight, and the other is returned too with the probability
+/// of its Fresnel share, its weight divided by that. Choosing one branch by chance thins the
+/// photons that land through glass like a coin toss per photon; here the likelier branch loses
+/// none, so stratified photons stay stratified through smooth glass. None for a diffuse surface.
+pub fn split_specular(
+    surface: &Surface,
+    d: Vec3,
+    sp: &SurfacePoint,
+    distance: f32,
+    rng: &mut Rng,
+) -> Option<(Scatter, Option<Scatter>)> {
+    let (r, t) = fresnel_branches(surface, d, sp)?;
+    let a = absorption(surface, sp, distance);
+    let absorbed = |s: Scatter, w: Rgb| Scatter { weight: a * w, ..s };
+    let Some(t) = t else {
+        return Some((absorbed(r, r.weight), None));
+    };
+    let f = r.weight.x; // F, the same in every channel
+    let (likelier, other, p) = if f <= 0.5 { (t, r, f) } else { (r, t, 1.0 - f) };
+    let other = (rng.uniform() < p).then(|| absorbed(other, other.weight / p));
+    Some((absorbed(likelier, likelier.weight), other))
+}
+
 /// Which lobes of a glTF BSDF a step samples or evaluates.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Part {
@@ -665,6 +689,61 @@ mod tests {
         let grazing = Vec3::new(-1.0, 0.01, 0.0).normalize();
         assert!(grazing.dot(ns) < 0.0 && grazing.dot(ng) > 0.0);
         assert!(adjoint_shading_correction(wi, grazing, ng, ns).is_none());
+    }
+
+    #[test]
+    fn split_specular_keeps_the_likelier_branch_and_is_unbiased() {
+        let glass = Surface::Dielectric {
+            ior: 1.5,
+            tint: Rgb::new(0.9, 0.8, 0.7),
+            absorption: None,
+        };
+        let ng = Vec3::Y;
+        let at = |backface: bool| SurfacePoint {
+            position: Vec3::ZERO,
+            geometric_normal: ng,
+            facing_normal: if backface { -ng } else { ng },
+            facing_shading_normal: if backface { -ng } else { ng },
+            facing_smooth_normal: if backface { -ng } else { ng },
+            backface,
+            uv: Vec2::ZERO,
+            material: 0,
+            triangle: 0,
+            eps: 1e-6,
+        };
+        let mut rng = Rng::keyed(9, 9, 11);
+        // Entering near normal (F 0.04) and at 85° (F 0.45), leaving at 40° (F 0.24) and at 60°
+        // (F 1: total internal reflection).
+        for (deg, leaving) in [(5.0f32, false), (85.0, false), (40.0, true), (60.0, true)] {
+            let (s, c) = deg.to_radians().sin_cos();
+            let d = Vec3::new(s, if leaving { c } else { -c }, 0.0);
+            let sp = at(leaving);
+            let (r, t) = specular_branches(&glass, d, &sp, 0.0).unwrap();
+            let n = 200_000;
+            let mut spawned = Rgb::ZERO;
+            for _ in 0..n {
+                let (likelier, other) = split_specular(&glass, d, &sp, 0.0, &mut rng).unwrap();
+                let f = r.weight.x;
+                let (want, rest) = match t {
+                    Some(t) if f <= 0.5 => (t, Some(r)),
+                    Some(t) => (r, Some(t)),
+                    None => (r, None),
+                };
+                assert_eq!(likelier, want, "{deg}°: the likelier branch with its own weight");
+                if let Some(o) = other {
+                    let rest = rest.expect("a spawned branch where Fresnel has two");
+                    assert_eq!(o.direction, rest.direction);
+                    spawned += o.weight;
+                }
+            }
+            // The spawned branch carries, on average, the other branch's Fresnel weight.
+            let want = t.map_or(Rgb::ZERO, |t| if r.weight.x <= 0.5 { r.weight } else { t.weight });
+            let got = spawned / n as f32;
+            assert!(
+                (got - want).abs().max_element() < 0.01 * want.max_element().max(0.05),
+                "{deg}°: {got} vs {want}"
+            );
+        }
     }
 
     #[test]

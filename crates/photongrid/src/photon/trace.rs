@@ -81,6 +81,12 @@ fn run_pass(
     let n = pass.paths;
     let chunks = n.div_ceil(CHUNK);
     let scrambles = Scrambles::new(settings.seed, pass.stream);
+    let tracer = Tracer {
+        scene,
+        accel,
+        settings,
+        pass: pass.kind,
+    };
     let trace_chunk = |c: usize| {
         let mut out = Out {
             photons: Vec::with_capacity(CHUNK * 2),
@@ -97,7 +103,7 @@ fn run_pass(
             if let Some((e, p_light)) = emitted {
                 let power = e.flux / (p_light * n as f32);
                 let ray = (e.origin.into(), e.direction, power);
-                trace_path(scene, accel, settings, pass.kind, ray, &mut rng, &mut out);
+                tracer.path(ray, &mut rng, &mut out);
             }
         }
         progress(end - c * CHUNK);
@@ -342,123 +348,177 @@ impl Out {
     }
 }
 
-/// A photon (`power`, `kind`) at a glTF surface: stored if the surface has a lobe rendered from
-/// photons, then continued by sampling the BSDF with Russian roulette. Returns the next origin,
-/// direction, power and kind, or None where the path ends.
-#[allow(clippy::too_many_arguments)]
-fn gltf_step(
-    scene: &Scene,
-    settings: &TraceSettings,
-    pass: PassKind,
-    m: &MetallicRoughness,
-    (sp, dir, distance, depth): (&SurfacePoint, Vec3, f32, u32),
-    (power, kind): (Rgb, PhotonKind),
-    rng: &mut Rng,
-    out: &mut Out,
-) -> Option<(Origin, Vec3, Rgb, PhotonKind)> {
-    let (stored, s) = bsdf::gltf_photon_step(scene, m, dir, sp, distance, rng);
-    if stored && pass.stores(kind, settings.store_direct) {
-        out.store(sp, dir, power, kind, depth, rng);
-    }
-    let s = s?;
-    // The caustic pass follows light through traced lobes only; a photon leaving by a stored
-    // lobe belongs to the global pass.
-    if pass == PassKind::Caustic && !s.traced {
-        return None;
-    }
-    let c = bsdf::adjoint_shading_correction(-dir, s.direction, sp.facing_normal, sp.facing_shading_normal)?;
-    // Russian roulette by the sampled throughput keeps the power nearly constant.
-    let q = s.weight.max_element().min(1.0);
-    if !(q > 0.0) || rng.uniform() >= q {
-        return None;
-    }
-    let kind = match (s.traced, kind) {
-        (true, PhotonKind::Direct) => PhotonKind::Caustic,
-        (true, k) => k,
-        (false, _) => PhotonKind::Indirect,
-    };
-    Some((sp.leave(s.direction), s.direction, power * (s.weight / q * c), kind))
+/// Specular interactions of one emitted photon, its spawned branches included, that follow
+/// both Fresnel branches ([`bsdf::split_specular`]); later ones choose a branch by chance. Four
+/// cover the two crossings of a slab or a solid and a reflection, and bound the branches one
+/// emitted photon can spawn.
+const SPLIT_SPECULAR: u32 = 4;
+
+/// A photon leaving a surface: where from, where to, its power and kind, and the surface
+/// interactions behind it.
+#[derive(Clone, Copy)]
+struct Leg {
+    origin: Origin,
+    dir: Vec3,
+    power: Rgb,
+    kind: PhotonKind,
+    depth: u32,
 }
 
-/// Follow one photon path from `origin` along `dir` with `power`, storing its photons in `out`.
-fn trace_path(
-    scene: &Scene,
-    accel: &impl ClosestHit,
-    settings: &TraceSettings,
-    pass: PassKind,
-    (mut origin, mut dir, mut power): (Origin, Vec3, Rgb),
-    rng: &mut Rng,
-    out: &mut Out,
-) {
-    let mut kind = PhotonKind::Direct;
-    for depth in 1..=settings.max_depth {
-        out.rays += 1;
-        let Some(hit) = accel.closest_hit(origin, dir, f32::INFINITY) else {
-            out.kinds.caustic_missed += usize::from(depth == 1 && pass == PassKind::Caustic);
-            return;
-        };
-        let sp = SurfacePoint::new(scene, origin.point, dir, hit);
-        let material = &scene.materials[sp.material as usize];
-        if depth == 1 && pass == PassKind::Caustic && !material.is_specular() {
-            out.kinds.caustic_missed += 1;
-        }
-        match &material.surface {
-            Surface::Lambert { .. } => {
-                let albedo = sp.albedo(scene);
-                if albedo.max_element() <= 0.0 {
-                    return;
-                }
-                if pass.stores(kind, settings.store_direct) {
-                    out.store(&sp, dir, power, kind, depth, rng);
-                }
-                if pass == PassKind::Caustic {
-                    return; // the caustic pass ends at the first diffuse surface
-                }
-                // Russian roulette on the largest channel keeps the photon power nearly constant.
-                let q = albedo.max_element().min(1.0);
-                if rng.uniform() >= q {
-                    return;
-                }
-                // A normal map shadows the light it came with as in the camera pass.
-                power *= albedo / q * bsdf::bump::at(&sp, -dir);
-                dir = sampling::cosine_hemisphere(rng.uniform2(), sp.facing_shading_normal);
-                if dir.dot(sp.facing_normal) <= 0.0 {
-                    return; // shading normal sent it below the surface
-                }
-                origin = sp.leave(dir);
-                kind = PhotonKind::Indirect;
-            }
-            Surface::Gltf(m) => {
-                let at = (&sp, dir, hit.t, depth);
-                let Some(next) = gltf_step(scene, settings, pass, m, at, (power, kind), rng, out) else {
-                    return;
-                };
-                (origin, dir, power, kind) = next;
-            }
-            surface => {
-                let Some(s) = bsdf::sample_specular(surface, dir, &sp, hit.t, rng) else {
-                    return;
-                };
-                // Interpolated normals: Veach's adjoint weight (photons travel against the
-                // direction the camera pass traces), and no path through the surface.
-                let Some(c) = bsdf::adjoint_shading_correction(-dir, s.direction, sp.facing_normal, s.normal) else {
-                    return;
-                };
-                let Some(w) = specular_roulette(s.weight, rng) else {
-                    return;
-                };
-                power *= w * c;
-                dir = s.direction;
-                origin = sp.leave(dir);
-                if kind == PhotonKind::Direct {
-                    kind = PhotonKind::Caustic;
-                }
-            }
-        }
-        if power.max_element() <= 0.0 || !power.is_finite() {
-            return;
+impl Leg {
+    /// A photon leaving `sp`, its `depth`-th interaction, along `dir`.
+    fn leaving(sp: &SurfacePoint, depth: u32, dir: Vec3, power: Rgb, kind: PhotonKind) -> Self {
+        Leg {
+            origin: sp.leave(dir),
+            dir,
+            power,
+            kind,
+            depth,
         }
     }
+}
+
+/// What a photon pass traces with; follows photon paths.
+struct Tracer<'a, A> {
+    scene: &'a Scene,
+    accel: &'a A,
+    settings: &'a TraceSettings,
+    pass: PassKind,
+}
+
+impl<A: ClosestHit> Tracer<'_, A> {
+    /// Follow one photon emitted from `origin` along `dir` with `power`, storing its photons in
+    /// `out`.
+    fn path(&self, (origin, dir, power): (Origin, Vec3, Rgb), rng: &mut Rng, out: &mut Out) {
+        let leg = Leg {
+            origin,
+            dir,
+            power,
+            kind: PhotonKind::Direct,
+            depth: 0,
+        };
+        let mut splits = SPLIT_SPECULAR;
+        self.follow(leg, &mut splits, rng, out);
+    }
+
+    /// Follow a photon from `leg` until it is absorbed, leaves the scene or reaches the depth
+    /// limit; `splits` is what is left of [`SPLIT_SPECULAR`] for its emitted photon.
+    fn follow(&self, mut leg: Leg, splits: &mut u32, rng: &mut Rng, out: &mut Out) {
+        let (scene, settings, pass) = (self.scene, self.settings, self.pass);
+        for depth in leg.depth + 1..=settings.max_depth {
+            let (dir, power, kind) = (leg.dir, leg.power, leg.kind);
+            out.rays += 1;
+            let Some(hit) = self.accel.closest_hit(leg.origin, dir, f32::INFINITY) else {
+                out.kinds.caustic_missed += usize::from(depth == 1 && pass == PassKind::Caustic);
+                return;
+            };
+            let sp = SurfacePoint::new(scene, leg.origin.point, dir, hit);
+            let material = &scene.materials[sp.material as usize];
+            if depth == 1 && pass == PassKind::Caustic && !material.is_specular() {
+                out.kinds.caustic_missed += 1;
+            }
+            let next = match &material.surface {
+                Surface::Lambert { .. } => {
+                    let albedo = sp.albedo(scene);
+                    if albedo.max_element() <= 0.0 {
+                        return;
+                    }
+                    if pass.stores(kind, settings.store_direct) {
+                        out.store(&sp, dir, power, kind, depth, rng);
+                    }
+                    if pass == PassKind::Caustic {
+                        return; // the caustic pass ends at the first diffuse surface
+                    }
+                    // Russian roulette on the largest channel keeps the photon power nearly constant.
+                    let q = albedo.max_element().min(1.0);
+                    if rng.uniform() >= q {
+                        return;
+                    }
+                    // A normal map shadows the light it came with as in the camera pass.
+                    let power = power * albedo / q * bsdf::bump::at(&sp, -dir);
+                    let dir = sampling::cosine_hemisphere(rng.uniform2(), sp.facing_shading_normal);
+                    if dir.dot(sp.facing_normal) <= 0.0 {
+                        return; // shading normal sent it below the surface
+                    }
+                    Some(Leg::leaving(&sp, depth, dir, power, PhotonKind::Indirect))
+                }
+                Surface::Gltf(m) => self.gltf_step(m, (&sp, hit.t, depth), &leg, rng, out),
+                surface if *splits > 0 => {
+                    *splits -= 1;
+                    let Some((s, other)) = bsdf::split_specular(surface, dir, &sp, hit.t, rng) else {
+                        return;
+                    };
+                    if let Some(branch) = other.and_then(|o| specular_leg(&sp, depth, &leg, o, o.weight)) {
+                        self.follow(branch, splits, rng, out);
+                    }
+                    specular_leg(&sp, depth, &leg, s, s.weight)
+                }
+                surface => {
+                    let Some(s) = bsdf::sample_specular(surface, dir, &sp, hit.t, rng) else {
+                        return;
+                    };
+                    let Some(w) = specular_roulette(s.weight, rng) else {
+                        return;
+                    };
+                    specular_leg(&sp, depth, &leg, s, w)
+                }
+            };
+            match next {
+                Some(next) if next.power.max_element() > 0.0 && next.power.is_finite() => leg = next,
+                _ => return,
+            }
+        }
+    }
+
+    /// The photon of `arriving` at a glTF surface `sp` (after `distance`, its `depth`-th
+    /// interaction): stored if the surface has a lobe rendered from photons, then continued by
+    /// sampling the BSDF with Russian roulette; None where the path ends.
+    fn gltf_step(
+        &self,
+        m: &MetallicRoughness,
+        (sp, distance, depth): (&SurfacePoint, f32, u32),
+        arriving: &Leg,
+        rng: &mut Rng,
+        out: &mut Out,
+    ) -> Option<Leg> {
+        let Leg { dir, power, kind, .. } = *arriving;
+        let (stored, s) = bsdf::gltf_photon_step(self.scene, m, dir, sp, distance, rng);
+        if stored && self.pass.stores(kind, self.settings.store_direct) {
+            out.store(sp, dir, power, kind, depth, rng);
+        }
+        let s = s?;
+        // The caustic pass follows light through traced lobes only; a photon leaving by a stored
+        // lobe belongs to the global pass.
+        if self.pass == PassKind::Caustic && !s.traced {
+            return None;
+        }
+        let c = bsdf::adjoint_shading_correction(-dir, s.direction, sp.facing_normal, sp.facing_shading_normal)?;
+        // Russian roulette by the sampled throughput keeps the power nearly constant.
+        let q = s.weight.max_element().min(1.0);
+        if !(q > 0.0) || rng.uniform() >= q {
+            return None;
+        }
+        let kind = match (s.traced, kind) {
+            (true, PhotonKind::Direct) => PhotonKind::Caustic,
+            (true, k) => k,
+            (false, _) => PhotonKind::Indirect,
+        };
+        Some(Leg::leaving(sp, depth, s.direction, power * (s.weight / q * c), kind))
+    }
+}
+
+/// The photon of `arriving` leaving a mirror or glass at `sp` (its `depth`-th interaction) by
+/// branch `s` with weight `w`, a caustic from then on; None where the shading normal forbids
+/// the branch.
+fn specular_leg(sp: &SurfacePoint, depth: u32, arriving: &Leg, s: bsdf::Scatter, w: Rgb) -> Option<Leg> {
+    // Interpolated normals: Veach's adjoint weight (photons travel against the direction the
+    // camera pass traces), and no path through the surface.
+    let c = bsdf::adjoint_shading_correction(-arriving.dir, s.direction, sp.facing_normal, s.normal)?;
+    let kind = match arriving.kind {
+        PhotonKind::Direct => PhotonKind::Caustic,
+        k => k,
+    };
+    Some(Leg::leaving(sp, depth, s.direction, arriving.power * w * c, kind))
 }
 
 /// Russian roulette where a specular weight is below one keeps the power nearly constant:
