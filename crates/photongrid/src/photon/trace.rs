@@ -407,6 +407,9 @@ impl<A: ClosestHit> Tracer<'_, A> {
         let (scene, settings, pass) = (self.scene, self.settings, self.pass);
         for depth in leg.depth + 1..=settings.max_depth {
             let (dir, power, kind) = (leg.dir, leg.power, leg.kind);
+            if !(power.max_element() > 0.0 && power.is_finite()) {
+                return; // a continued or spawned branch alike
+            }
             out.rays += 1;
             let Some(hit) = self.accel.closest_hit(leg.origin, dir, f32::INFINITY) else {
                 out.kinds.caustic_missed += usize::from(depth == 1 && pass == PassKind::Caustic);
@@ -463,10 +466,10 @@ impl<A: ClosestHit> Tracer<'_, A> {
                     specular_leg(&sp, depth, &leg, s, w)
                 }
             };
-            match next {
-                Some(next) if next.power.max_element() > 0.0 && next.power.is_finite() => leg = next,
-                _ => return,
-            }
+            let Some(next) = next else {
+                return;
+            };
+            leg = next;
         }
     }
 
