@@ -8,6 +8,8 @@ where the estimate is systematically off).
 
 All figures are luminance, over the pixels the specular mask keeps (mask <= 0.5), relative to
 the reference's mean luminance there: the per-pixel error is `photongrid compare`'s rel_rmse.
+The same split of the error of 8x8-block means (blocks wholly kept, as `compare`'s
+block_rel_rmse) follows; a block's reference noise is its pixels' standard errors combined.
 
 Usage: tools/error_split.py A.exr B.exr REF.exr [--mask MASK.exr] [--stderr STDERR.exr]
 Needs numpy and OpenEXR (as ../shared/tools/score.py).
@@ -44,17 +46,32 @@ def main():
     args = ap.parse_args()
     a, b, r = (luminance(read(p)) for p in (args.a, args.b, args.reference))
     keep = np.ones(r.shape, bool) if args.mask is None else luminance(read(args.mask)) <= 0.5
+    err = np.zeros(r.shape) if args.stderr is None else luminance(read(args.stderr))
     mean = r[keep].mean()
-    total = np.mean((a - r)[keep] ** 2)
-    noise = np.mean(((a - b) / np.sqrt(2.0))[keep] ** 2)
-    ref_noise = 0.0 if args.stderr is None else np.mean(luminance(read(args.stderr))[keep] ** 2)
-    bias = max(total - noise - ref_noise, 0.0)
     pct = lambda v: 100.0 * np.sqrt(v) / mean
-    print(f"per-pixel error    {pct(total):6.2f} %  (A against the reference)")
-    print(f"  render's noise   {pct(noise):6.2f} %  (RMS of (A - B) / sqrt 2)")
-    print(f"  reference noise  {pct(ref_noise):6.2f} %  (RMS of its standard error)")
-    print(f"  render's bias    {pct(bias):6.2f} %  (what is left)")
+    full = blocks(keep.astype(float)) > 0.999
+    block = lambda x: blocks(np.where(keep, x, 0.0))[full]
+    for name, what, parts in (
+        ("per-pixel", "RMS of its standard error", lambda x: x[keep]),
+        ("block", "its pixels' standard errors combined", block),
+    ):
+        total = np.mean((parts(a) - parts(r)) ** 2)
+        noise = np.mean(((parts(a) - parts(b)) / np.sqrt(2.0)) ** 2)
+        ref_noise = np.mean(block(err**2) / BLOCK**2) if parts is block else np.mean(parts(err) ** 2)
+        bias = max(total - noise - ref_noise, 0.0)
+        print(f"{name + ' error':18s} {pct(total):6.2f} %  (A against the reference)")
+        print(f"  render's noise   {pct(noise):6.2f} %  (RMS of (A - B) / sqrt 2)")
+        print(f"  reference noise  {pct(ref_noise):6.2f} %  ({what})")
+        print(f"  render's bias    {pct(bias):6.2f} %  (what is left)")
 
+
+BLOCK = 8
+
+
+def blocks(x):
+    """Means of the image's whole BLOCK x BLOCK blocks."""
+    h, w = x.shape[0] // BLOCK * BLOCK, x.shape[1] // BLOCK * BLOCK
+    return x[:h, :w].reshape(h // BLOCK, BLOCK, w // BLOCK, BLOCK).mean(axis=(1, 3))
 
 if __name__ == "__main__":
     main()

@@ -296,6 +296,18 @@ pub fn pixel_scramble(seed: u64, purpose: u64, pixel: u64) -> u64 {
     mix64(seed ^ mix64(purpose ^ pixel << 8))
 }
 
+/// The Morton index of (x, y) (bits interleaved, x's lowest first), each below 2^16.
+pub fn morton2(x: u32, y: u32) -> u32 {
+    fn spread(v: u32) -> u32 {
+        let v = v & 0xffff;
+        let v = (v | v << 8) & 0x00ff_00ff;
+        let v = (v | v << 4) & 0x0f0f_0f0f;
+        let v = (v | v << 2) & 0x3333_3333;
+        (v | v << 1) & 0x5555_5555
+    }
+    spread(x) | spread(y) << 1
+}
+
 /// Dimension `d` of point `index` of the (unscrambled) Sobol sequence, as a 32-bit fraction.
 fn sobol_dimension(mut index: u32, d: usize) -> u32 {
     let (mut x, mut k) = (0, 0);
@@ -630,6 +642,24 @@ mod tests {
         let mut union = union;
         union.sort();
         assert_eq!(union, (0..8).collect::<Vec<_>>());
+    }
+
+    #[test]
+    fn morton_order_visits_each_aligned_square_in_one_run() {
+        assert_eq!(
+            (morton2(1, 0), morton2(0, 1), morton2(1, 1), morton2(2, 0)),
+            (1, 2, 3, 4)
+        );
+        for side in [2u32, 8, 64] {
+            let (x0, y0) = (3 * side, 5 * side);
+            let mut m: Vec<u32> = (0..side * side)
+                .map(|i| morton2(x0 + i % side, y0 + i / side))
+                .collect();
+            m.sort();
+            let first = morton2(x0, y0);
+            assert_eq!(m, (first..first + side * side).collect::<Vec<_>>(), "{side}");
+        }
+        assert_eq!(morton2(0xffff, 0xffff), u32::MAX);
     }
 
     #[test]

@@ -53,6 +53,10 @@ pub struct RenderSettings {
     /// Index of this pass's first sample in each pixel's sequence (the samples per pixel the
     /// earlier passes took), so that the passes together stay stratified.
     pub first_sample: u32,
+    /// Samples per pixel of one run of the points its gathers take from its tile's sequence
+    /// ([`GatherPoints`]): the render's planned samples per pixel, so that the run is full at
+    /// its end.
+    pub pixel_run: u32,
     /// Final-gather rays per camera sample (0: none).
     pub gather: u32,
     /// Share of them aimed at bright surfaces ([`crate::estimate::bright`]).
@@ -111,34 +115,67 @@ impl Drop for Tracer<'_> {
     }
 }
 
-/// The final-gather directions of one camera sample: points `base..base + gather` of its
-/// pixel's Owen-scrambled Sobol sequence, so that a gather's rays stratify the hemisphere and
-/// a pixel's gathers over samples and passes go on filling it (independent random directions
-/// left the smooth indirect light of a concave room grainy). Every gather of the sample (both
-/// glass branches) reads the same points: different integrands, each unbiased.
+/// The final-gather directions of one camera sample. The pixels of a tile of
+/// 2^[`TILE_BITS`] × 2^[`TILE_BITS`] share one Owen-scrambled Sobol sequence, in Morton order
+/// of the pixels: a pixel's run holds [`RenderSettings::pixel_run`] samples' gathers in turn,
+/// so a pixel's gathers over samples and passes go on filling its hemisphere (independent
+/// random directions left the smooth indirect light of a concave room grainy), and
+/// neighbouring pixels' runs fill it together, so the error of an area's average falls faster
+/// than its pixels' (Ahmed and Wonka 2020, screen-space blue noise from Morton-ordered pixels).
+/// Each pixel visits its run in its own shuffled order (the offset within the run XORed with a
+/// per-pixel key, which keeps every aligned power-of-two part of the run a net): where a
+/// gather takes fewer points than its stride (some rays aimed at bright planes) or a render
+/// fewer samples than its run, the points left out differ from pixel to pixel, instead of
+/// leaving the same gap in every pixel of the tile. Samples past the run start the next,
+/// scrambled anew. Every gather of the sample (both glass branches) reads the same points:
+/// different integrands, each unbiased.
 #[derive(Clone, Copy, Default)]
 struct GatherPoints {
     scramble: u64,
-    base: u32,
+    /// The pixel's run: its first point, its shuffle (below its length) and where this
+    /// sample's gather starts in it.
+    run_start: u32,
+    shuffle: u32,
+    offset: u32,
 }
 
+/// Pixels per side of a tile sharing one gather sequence, as a power of two: its Morton index
+/// takes 12 bits of the 32-bit point index, leaving 20 for a run.
+const TILE_BITS: u32 = 6;
+
 impl GatherPoints {
-    /// Sample `index` of `pixel` of a render whose sequences are keyed by `seed`, with `gather`
-    /// rays per gather. The stride is the gather count rounded up to a power of two, so each
-    /// gather's points are a (0, m, 2)-net; the scramble is keyed by the stride, so that passes
-    /// with other gather counts do not reuse the same points.
-    fn of(seed: u64, gather: u32, pixel: u64, index: u32) -> Self {
-        let stride = gather.max(1).next_power_of_two();
-        let key = pixel | (u64::from(stride.trailing_zeros()) << 48);
+    /// Sample `s` of this pass at pixel (x, y). The stride (points per gather) is the gather
+    /// count rounded up to a power of two, so each gather's points are a (0, m, 2)-net, and a
+    /// run the planned samples rounded up likewise (within the 20 bits); the scramble is keyed
+    /// by the tile, the stride and the run, so passes with other gather counts and later runs
+    /// do not reuse the same points.
+    fn of(settings: &RenderSettings, x: usize, y: usize, s: u32) -> Self {
+        let stride = settings.gather.max(1).next_power_of_two();
+        let run = settings
+            .pixel_run
+            .max(1)
+            .next_power_of_two()
+            .min((1 << (32 - 2 * TILE_BITS)) / stride)
+            .max(1);
+        let sample = settings.first_sample.wrapping_add(s);
+        let mask = (1 << TILE_BITS) - 1;
+        let tile = (x >> TILE_BITS) as u64 | ((y >> TILE_BITS) as u64) << 16;
+        let key = tile | u64::from(stride.trailing_zeros()) << 32 | u64::from(sample / run) << 40;
+        let scramble = sampling::pixel_scramble(settings.sequence_seed, stream::GATHER, key);
+        let pixel = sampling::morton2((x & mask) as u32, (y & mask) as u32);
+        let length = run * stride;
         GatherPoints {
-            scramble: sampling::pixel_scramble(seed, stream::GATHER, key),
-            base: index.wrapping_mul(stride),
+            scramble,
+            run_start: pixel * length,
+            shuffle: sampling::mix64(scramble ^ u64::from(pixel)) as u32 & (length - 1),
+            offset: sample % run * stride,
         }
     }
 
-    /// The `j`-th direction's point in [0,1)².
+    /// The `j`-th direction's point in [0,1)² (`j` below the stride).
     fn point(&self, j: u32) -> Vec2 {
-        sampling::owen_sobol(self.base.wrapping_add(j), self.scramble)
+        let index = self.run_start + ((self.offset + j) ^ self.shuffle);
+        sampling::owen_sobol(index, self.scramble)
     }
 }
 
@@ -287,12 +324,7 @@ fn render_sweep(
                 }
                 for x in 0..w {
                     let (o, d, mut rng) = camera_ray(camera, settings, x, y, s);
-                    tracer.gather_points = GatherPoints::of(
-                        settings.sequence_seed,
-                        settings.gather,
-                        pixel_index(settings, x, y),
-                        settings.first_sample.wrapping_add(s),
-                    );
+                    tracer.gather_points = GatherPoints::of(settings, x, y, s);
                     let mut first = (s == 0).then_some(&mut aovs[x]);
                     let edge = edges.is_some_and(|e| e.contains(x, y));
                     tracer.skip_seen_emission = edge;
@@ -618,41 +650,114 @@ fn first_hit_aov(aov: &mut Option<&mut Aov>, sp: &SurfacePoint, t: f32) {
 mod tests {
     use super::*;
 
-    /// The cells of an `n`×`n` grid holding gather points `0..count` of one sample.
-    fn cells(p: &GatherPoints, count: u32, nx: u32, ny: u32) -> Vec<u32> {
-        let mut c: Vec<u32> = (0..count)
-            .map(|j| {
-                let u = p.point(j);
-                (u.y * ny as f32) as u32 * nx + (u.x * nx as f32) as u32
+    /// A pass's settings with `gather` rays per gather, runs of `pixel_run` samples and the
+    /// render's sequences keyed by `seed`.
+    fn pass(gather: u32, pixel_run: u32, seed: u64) -> RenderSettings {
+        RenderSettings {
+            width: 256,
+            height: 256,
+            spp: 1,
+            direct: DirectLighting::ShadowRays,
+            light_samples: 1,
+            max_specular_depth: 8,
+            split_depth: 2,
+            seed,
+            sequence_seed: seed,
+            first_sample: 0,
+            pixel_run,
+            gather,
+            gather_bright: 0.0,
+        }
+    }
+
+    /// Whether `points` (2^m of them) hold one point in each cell of every 2^a × 2^(m-a) grid.
+    fn is_net(points: &[Vec2]) -> bool {
+        let m = points.len().trailing_zeros();
+        (0..=m).all(|a| {
+            let (nx, ny) = (1u32 << a, 1u32 << (m - a));
+            let mut seen = vec![false; points.len()];
+            points.iter().all(|u| {
+                let c = ((u.y * ny as f32) as u32 * nx + (u.x * nx as f32) as u32) as usize;
+                !std::mem::replace(&mut seen[c], true)
             })
-            .collect();
-        c.sort();
-        c
+        })
+    }
+
+    /// Points `0..count` of each of `samples` samples at each pixel of `pixels`.
+    fn points(rs: &RenderSettings, pixels: &[(usize, usize)], samples: u32, count: u32) -> Vec<Vec2> {
+        let mut out = Vec::new();
+        for &(x, y) in pixels {
+            for s in 0..samples {
+                let p = GatherPoints::of(rs, x, y, s);
+                out.extend((0..count).map(|j| p.point(j)));
+            }
+        }
+        out
+    }
+
+    fn block(x0: usize, y0: usize, side: usize) -> Vec<(usize, usize)> {
+        (0..side * side).map(|i| (x0 + i % side, y0 + i / side)).collect()
     }
 
     #[test]
-    fn each_gathers_directions_are_a_net_and_samples_and_pixels_differ() {
-        for (gather, m) in [(8u32, 3u32), (5, 3), (16, 4)] {
-            for index in [0u32, 1, 7, 1000] {
-                let p = GatherPoints::of(3, gather, 12_345, index);
-                for a in 0..=m {
-                    let (nx, ny) = (1 << a, 1 << (m - a));
-                    assert_eq!(
-                        cells(&p, 1 << m, nx, ny),
-                        (0..1 << m).collect::<Vec<_>>(),
-                        "{gather} {index} {a}"
-                    );
-                }
+    fn gathers_samples_runs_and_blocks_of_pixels_are_nets() {
+        for (gather, stride) in [(8u32, 8u32), (5, 8), (16, 16)] {
+            let rs = pass(gather, 4, 3);
+            // Each gather; each pixel's run of 4 samples (and a later run's first gather).
+            for s in [0, 1, 3, 4, 1001] {
+                let p = GatherPoints::of(&rs, 77, 140, s);
+                let one: Vec<Vec2> = (0..stride).map(|j| p.point(j)).collect();
+                assert!(is_net(&one), "{gather} {s}");
             }
+            assert!(is_net(&points(&rs, &[(77, 140)], 4, stride)), "{gather}");
+            // A 2×2 and an 8×8 block of pixels together, whole runs.
+            assert!(is_net(&points(&rs, &block(76, 140, 2), 4, stride)), "{gather}");
+            assert!(is_net(&points(&rs, &block(64, 136, 8), 4, stride)), "{gather}");
         }
-        let first = |p: GatherPoints| p.point(0);
-        assert_ne!(first(GatherPoints::of(3, 8, 1, 0)), first(GatherPoints::of(3, 8, 2, 0)));
-        assert_ne!(first(GatherPoints::of(3, 8, 1, 0)), first(GatherPoints::of(3, 8, 1, 1)));
+        let first = |x, y, s, gather| GatherPoints::of(&pass(gather, 4, 3), x, y, s).point(0);
+        assert_ne!(first(1, 0, 0, 8), first(2, 0, 0, 8));
+        assert_ne!(first(1, 0, 0, 8), first(1, 0, 1, 8));
+        // The next run and another tile are scrambled anew.
+        assert_ne!(first(1, 0, 0, 8), first(1, 0, 4, 8));
+        let next = GatherPoints::of(&pass(8, 4, 3), 1, 0, 4);
+        assert_ne!(next.scramble, GatherPoints::of(&pass(8, 4, 3), 1, 0, 0).scramble);
+        assert_ne!(next.scramble, GatherPoints::of(&pass(8, 4, 3), 65, 0, 4).scramble);
         // Another gather count (another pass's plan) draws other points, not the same ones again.
-        assert_ne!(
-            first(GatherPoints::of(3, 8, 1, 0)),
-            first(GatherPoints::of(3, 16, 1, 0))
+        assert_ne!(first(1, 0, 0, 8), first(1, 0, 0, 16));
+    }
+
+    /// What sharing a tile's sequence is for: the average of an 8×8 block of pixels gathering
+    /// the same smooth light is far less noisy than if each pixel's gathers were a net of its
+    /// own (another tile's: independent scrambles), and unbiased.
+    #[test]
+    fn a_blocks_shared_gathers_average_out_faster_than_independent_ones() {
+        let radiance = |d: Vec3| 1.0 + d.x + 0.5 * d.y * d.y;
+        let truth = 1.0 + 0.5 * 0.25;
+        let mean_of = |points: &[Vec2]| {
+            points
+                .iter()
+                .map(|&u| radiance(sampling::cosine_hemisphere(u, Vec3::Z)) as f64)
+                .sum::<f64>()
+                / points.len() as f64
+        };
+        let (mut se_shared, mut se_own, mut sum_shared) = (0.0, 0.0, 0.0);
+        let trials = 200;
+        for t in 0..trials {
+            let rs = pass(8, 1, t);
+            let shared = mean_of(&points(&rs, &block(0, 0, 8), 1, 8));
+            // The first pixel of 64 other tiles.
+            let own: Vec<Vec2> = (1..=64).flat_map(|i| points(&rs, &[(64 * i, 0)], 1, 8)).collect();
+            sum_shared += shared;
+            se_shared += (shared - truth as f64).powi(2);
+            se_own += (mean_of(&own) - truth as f64).powi(2);
+        }
+        let mean = sum_shared / trials as f64;
+        let sd = (se_shared / trials as f64).sqrt();
+        assert!(
+            (mean - truth as f64).abs() < 4.0 * sd / (trials as f64).sqrt() + 1e-6,
+            "mean {mean}"
         );
+        assert!(se_shared < 0.1 * se_own, "shared {se_shared}, own {se_own}");
     }
 
     /// What the stratification is for: the cosine-weighted mean of a smooth radiance over the
@@ -668,7 +773,7 @@ mod tests {
         let trials = 4000;
         let mut rng = Rng::keyed(1, 2, 3);
         for t in 0..trials {
-            let p = GatherPoints::of(9, 8, t as u64, 0);
+            let p = GatherPoints::of(&pass(8, 1, 9), 64 * t as usize, 0, 0); // a tile each
             let strat: f32 = (0..8)
                 .map(|j| radiance(sampling::cosine_hemisphere(p.point(j), n)))
                 .sum::<f32>()
