@@ -275,6 +275,8 @@ pub mod stream {
     pub const EDGE_RAYS: u64 = 5;
     /// Per-pixel scrambling of the final-gather directions.
     pub const GATHER: u64 = 6;
+    /// Per-tile scrambling of the points final-gather rays aimed at bright planes pick.
+    pub const AIMED: u64 = 7;
 }
 
 /// Point `index` in [0,1)² of a pixel's sequence (film positions, gather directions): the first

@@ -96,6 +96,8 @@ struct Tracer<'a> {
     aim: Aim,
     /// Where the camera sample in hand draws its gather directions.
     gather_points: GatherPoints,
+    /// Where the camera sample in hand picks the points its aimed gather rays go to.
+    aimed_points: GatherPoints,
     /// The camera, for the footprint of its pixels.
     camera: &'a Camera,
     /// The pixel footprint's radius at the surface being shaded ([`Query::footprint`]; 0 past
@@ -150,7 +152,17 @@ impl GatherPoints {
     /// by the tile, the stride and the run, so passes with other gather counts and later runs
     /// do not reuse the same points.
     fn of(settings: &RenderSettings, x: usize, y: usize, s: u32) -> Self {
-        let stride = settings.gather.max(1).next_power_of_two();
+        Self::in_tile(settings, (stream::GATHER, settings.gather), x, y, s)
+    }
+
+    /// The points of the rays sample `s` aims at bright planes (at most `gather × gather_bright`).
+    fn aimed(settings: &RenderSettings, x: usize, y: usize, s: u32) -> Self {
+        let most = (settings.gather as f32 * settings.gather_bright).round() as u32;
+        Self::in_tile(settings, (stream::AIMED, most), x, y, s)
+    }
+
+    fn in_tile(settings: &RenderSettings, (purpose, points): (u64, u32), x: usize, y: usize, s: u32) -> Self {
+        let stride = points.max(1).next_power_of_two();
         let run = settings
             .pixel_run
             .max(1)
@@ -161,7 +173,7 @@ impl GatherPoints {
         let mask = (1 << TILE_BITS) - 1;
         let tile = (x >> TILE_BITS) as u64 | ((y >> TILE_BITS) as u64) << 16;
         let key = tile | u64::from(stride.trailing_zeros()) << 32 | u64::from(sample / run) << 40;
-        let scramble = sampling::pixel_scramble(settings.sequence_seed, stream::GATHER, key);
+        let scramble = sampling::pixel_scramble(settings.sequence_seed, purpose, key);
         let pixel = sampling::morton2((x & mask) as u32, (y & mask) as u32);
         let length = run * stride;
         GatherPoints {
@@ -191,6 +203,7 @@ impl<'a> Tracer<'a> {
             skip_seen_emission: false,
             aim: Aim::default(),
             gather_points: GatherPoints::default(),
+            aimed_points: GatherPoints::default(),
             camera: pass.camera,
             footprint: 0.0,
             gathering_points: pass.gathering_points,
@@ -325,6 +338,7 @@ fn render_sweep(
                 for x in 0..w {
                     let (o, d, mut rng) = camera_ray(camera, settings, x, y, s);
                     tracer.gather_points = GatherPoints::of(settings, x, y, s);
+                    tracer.aimed_points = GatherPoints::aimed(settings, x, y, s);
                     let mut first = (s == 0).then_some(&mut aovs[x]);
                     let edge = edges.is_some_and(|e| e.contains(x, y));
                     tracer.skip_seen_emission = edge;
@@ -494,8 +508,10 @@ impl Tracer<'_> {
             sum += l * lobe.weight(&s, pdf_aimed, rays);
         }
         if let Some((grids, texels)) = bright {
-            for _ in 0..aimed {
-                let Some(s) = texels.sample(&aim, rng.uniform(), rng.uniform2()) else {
+            for k in 0..aimed {
+                // Stratified: the texel's choice and one coordinate in it.
+                let u = self.aimed_points.point(k);
+                let Some(s) = texels.sample(&aim, u.x, Vec2::new(u.y, rng.uniform())) else {
                     break;
                 };
                 if let Some((l, d, pdf_aimed)) = self.aimed_ray(sp, &s, grids) {
@@ -724,6 +740,19 @@ mod tests {
         assert_ne!(next.scramble, GatherPoints::of(&pass(8, 4, 3), 65, 0, 4).scramble);
         // Another gather count (another pass's plan) draws other points, not the same ones again.
         assert_ne!(first(1, 0, 0, 8), first(1, 0, 0, 16));
+        // The aimed rays' points (one per sample at an eighth of 8 rays): a pixel's run, a block.
+        let rs = RenderSettings {
+            gather_bright: 0.125,
+            ..pass(8, 4, 3)
+        };
+        let aimed = |pixels: &[(usize, usize)]| -> Vec<Vec2> {
+            let rs = &rs;
+            let run = |&(x, y): &(usize, usize)| (0..4).map(move |s| GatherPoints::aimed(rs, x, y, s).point(0));
+            pixels.iter().flat_map(run).collect()
+        };
+        assert!(is_net(&aimed(&[(77, 140)])));
+        assert!(is_net(&aimed(&block(64, 136, 8))));
+        assert_ne!(aimed(&[(77, 140)]), points(&rs, &[(77, 140)], 4, 1));
     }
 
     /// What sharing a tile's sequence is for: the average of an 8×8 block of pixels gathering
