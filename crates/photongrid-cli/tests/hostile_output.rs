@@ -269,6 +269,11 @@ fn renders_over_the_memory_limit_are_refused_with_what_to_change() {
         &["-o", s(&out), "--spp", "4294967295", "--memory-limit", "8G"],
     );
     assert_fails_with(&r, &["--spp 4294967295", "samples per pixel in one pass", "add passes"]);
+    let r = render(&dir, &p, &["-o", s(&out), "--gather", "4294967295"]);
+    assert_fails_with(
+        &r,
+        &["--gather 4294967295", "final-gather rays per camera sample", "spp"],
+    );
     let r = render(&dir, &p, &["-o", s(&out), "--memory-limit", "lots"]);
     assert_fails_with(&r, &["--memory-limit", "not a size"]);
     assert!(!out.exists());

@@ -125,7 +125,8 @@ pub struct Settings {
     /// camera; deeper, one is chosen by Fresnel.
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Light paths", default_value_t = Settings::default().split_depth))]
     pub split_depth: u32,
-    /// Final-gather rays per camera sample (0: show the photon map directly, as the paper).
+    /// Final-gather rays per camera sample (0: show the photon map directly, as the paper; at
+    /// most 4096).
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Light paths", default_value_t = Settings::default().gather))]
     pub gather: u32,
     /// Photons per precomputed irradiance estimate (final gathering).
@@ -334,6 +335,10 @@ pub const MAX_PIXELS: u64 = 1 << 28;
 /// at after each.
 pub const MAX_SPP: u32 = 1 << 16;
 
+/// Most final-gather rays per camera sample: beyond this one sample's gathers cost more than
+/// many samples would, and samples (`--spp`) spread the same rays over the pixel as well.
+pub const MAX_GATHER: u32 = 1 << 12;
+
 impl Settings {
     /// Check values that would make a render meaningless or impossible, with what to do.
     pub fn validate(&self) -> Result<(), SettingsError> {
@@ -353,6 +358,15 @@ impl Settings {
                 &format!(
                     "{} is more than {MAX_SPP} samples per pixel in one pass: lower it, and add passes (passes) or a time budget (time) instead",
                     self.spp
+                ),
+            ));
+        }
+        if self.gather > MAX_GATHER {
+            return Err(e(
+                "gather",
+                &format!(
+                    "{} is more than {MAX_GATHER} final-gather rays per camera sample: lower it, and add samples per pixel (spp) instead",
+                    self.gather
                 ),
             ));
         }

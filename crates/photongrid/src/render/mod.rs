@@ -10,7 +10,7 @@ use crate::film::{Aov, Film};
 use crate::grid::multiscale::MultiscaleGrids;
 use crate::sampling::{self, stream, Rng};
 use crate::scene::{Camera, Scene, Surface};
-use crate::settings::DirectLighting;
+use crate::settings::{DirectLighting, MAX_GATHER};
 use crate::spatial::KnnBuffer;
 use crate::surface::SurfacePoint;
 use crate::Rgb;
@@ -146,11 +146,7 @@ struct GatherPoints {
 const TILE_BITS: u32 = 6;
 
 impl GatherPoints {
-    /// Sample `s` of this pass at pixel (x, y). The stride (points per gather) is the gather
-    /// count rounded up to a power of two, so each gather's points are a (0, m, 2)-net, and a
-    /// run the planned samples rounded up likewise (within the 20 bits); the scramble is keyed
-    /// by the tile, the stride and the run, so passes with other gather counts and later runs
-    /// do not reuse the same points.
+    /// The gather directions of sample `s` of this pass at pixel (x, y).
     fn of(settings: &RenderSettings, x: usize, y: usize, s: u32) -> Self {
         Self::in_tile(settings, (stream::GATHER, settings.gather), x, y, s)
     }
@@ -161,14 +157,15 @@ impl GatherPoints {
         Self::in_tile(settings, (stream::AIMED, most), x, y, s)
     }
 
+    /// Sample `s`'s `points` from the tile's sequence for `purpose` (a [`stream`] key). The
+    /// stride (points per sample) is `points` rounded up to a power of two, so each sample's
+    /// points are a (0, m, 2)-net, and a run the planned samples rounded up likewise (within
+    /// the 20 bits); the scramble is keyed by the tile, the stride and the run, so passes with
+    /// other gather counts and later runs do not reuse the same points.
     fn in_tile(settings: &RenderSettings, (purpose, points): (u64, u32), x: usize, y: usize, s: u32) -> Self {
-        let stride = points.max(1).next_power_of_two();
-        let run = settings
-            .pixel_run
-            .max(1)
-            .next_power_of_two()
-            .min((1 << (32 - 2 * TILE_BITS)) / stride)
-            .max(1);
+        let stride = points.clamp(1, MAX_GATHER).next_power_of_two();
+        let longest = (1 << (32 - 2 * TILE_BITS)) / stride;
+        let run = settings.pixel_run.clamp(1, longest).next_power_of_two();
         let sample = settings.first_sample.wrapping_add(s);
         let mask = (1 << TILE_BITS) - 1;
         let tile = (x >> TILE_BITS) as u64 | ((y >> TILE_BITS) as u64) << 16;
