@@ -349,40 +349,7 @@ impl Settings {
         if self.max_depth == 1 {
             return Err(e("max_depth", "must be 0 (no limit) or at least 2 (direct light)"));
         }
-        if self.spp == 0 {
-            return Err(e("spp", "must be at least 1"));
-        }
-        if self.spp > MAX_SPP {
-            return Err(e(
-                "spp",
-                &format!(
-                    "{} is more than {MAX_SPP} samples per pixel in one pass: lower it, and add passes (passes) or a time budget (time) instead",
-                    self.spp
-                ),
-            ));
-        }
-        if self.gather > MAX_GATHER {
-            return Err(e(
-                "gather",
-                &format!(
-                    "{} is more than {MAX_GATHER} final-gather rays per camera sample: lower it, and add samples per pixel (spp) instead",
-                    self.gather
-                ),
-            ));
-        }
-        if self.width == Some(0) {
-            return Err(e("width", "must be at least 1"));
-        }
-        if self.height == Some(0) {
-            return Err(e("height", "must be at least 1"));
-        }
-        let (w, h) = (self.width.unwrap_or(640) as u64, self.height.unwrap_or(480) as u64);
-        if w * h > MAX_PIXELS {
-            return Err(e(
-                "width",
-                &format!("× height = {w}×{h} pixels is too large (at most 2^28)"),
-            ));
-        }
+        self.validate_sizes()?;
         if !(0.0..1.0).contains(&self.gather_bright) {
             return Err(e(
                 "gather_bright",
@@ -423,6 +390,46 @@ impl Settings {
             if !(t > 0.0 && t.is_finite()) {
                 return Err(e("time", "must be a positive number of seconds"));
             }
+        }
+        Ok(())
+    }
+
+    /// [`Settings::validate`]'s checks of the image and the work per pixel.
+    fn validate_sizes(&self) -> Result<(), SettingsError> {
+        let e = |key, message: &str| SettingsError::new(key, message);
+        if self.spp == 0 {
+            return Err(e("spp", "must be at least 1"));
+        }
+        if self.spp > MAX_SPP {
+            return Err(e(
+                "spp",
+                &format!(
+                    "{} is more than {MAX_SPP} samples per pixel in one pass: lower it, and add passes (passes) or a time budget (time) instead",
+                    self.spp
+                ),
+            ));
+        }
+        if self.gather > MAX_GATHER {
+            return Err(e(
+                "gather",
+                &format!(
+                    "{} is more than {MAX_GATHER} final-gather rays per camera sample: lower it, and add samples per pixel (spp) instead",
+                    self.gather
+                ),
+            ));
+        }
+        if self.width == Some(0) {
+            return Err(e("width", "must be at least 1"));
+        }
+        if self.height == Some(0) {
+            return Err(e("height", "must be at least 1"));
+        }
+        let (w, h) = (self.width.unwrap_or(640) as u64, self.height.unwrap_or(480) as u64);
+        if w * h > MAX_PIXELS {
+            return Err(e(
+                "width",
+                &format!("× height = {w}×{h} pixels is too large (at most 2^28)"),
+            ));
         }
         Ok(())
     }
