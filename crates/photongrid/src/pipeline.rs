@@ -12,7 +12,7 @@ use crate::grid::PlaneGrids;
 use crate::grid::{GridParams, Grids};
 use crate::photon::{trace_photons, Photon, PhotonKind, PhotonStats, TraceSettings};
 use crate::progress::Progress;
-use crate::render::budget::{corrected, plan, Costs, PassSize, Plan, Stage, GATHER_LADDER, PLANNED_PASSES};
+use crate::render::budget::{corrected, plan, Costs, PassSize, Plan, Stage, GATHER_LADDER};
 use crate::render::progressive::{Accumulator, Budget, Stop};
 use crate::render::{CameraPass, Cut, PhotonData, RenderSettings};
 use crate::sampling::pass_seed;
@@ -497,8 +497,6 @@ struct PassLoop<'a> {
     surfaces: Surfaces<'a>,
     /// Final-gather rays per pixel over the passes so far.
     gather_rays: f32,
-    /// [`RenderSettings::pixel_run`], planned with the first pass's size.
-    pixel_run: u32,
 }
 
 impl<'a> PassLoop<'a> {
@@ -518,7 +516,6 @@ impl<'a> PassLoop<'a> {
             })
             .collect();
         let surfaces = Surfaces::new(scene, accel, &settings);
-        let pixel_run = planned_samples(&settings);
         PassLoop {
             scene,
             accel,
@@ -532,7 +529,6 @@ impl<'a> PassLoop<'a> {
             grids: GridState::default(),
             surfaces,
             gather_rays: 0.0,
-            pixel_run,
         }
     }
 
@@ -560,7 +556,6 @@ impl<'a> PassLoop<'a> {
                 pass: done,
                 cut,
                 weight: self.weight,
-                pixel_run: self.pixel_run,
             };
             let (seconds, samples) = render_pass(scene, accel, input, job, camera, settings, acc, progress);
             self.render_seconds[i] += seconds;
@@ -1276,31 +1271,17 @@ fn render_settings(camera: &Camera, settings: &Settings, pass: u32) -> RenderSet
         seed: pass_seed(settings.seed, pass),
         sequence_seed: settings.seed,
         first_sample: 0,
-        pixel_run: planned_samples(settings),
         gather: settings.effective_gather(),
         gather_bright: settings.gather_bright,
     }
 }
 
-/// Samples per pixel the render plans: its passes' (with a time budget and no pass count,
-/// [`PLANNED_PASSES`] rounded up).
-fn planned_samples(settings: &Settings) -> u32 {
-    let passes = match (settings.passes, settings.time) {
-        (Some(p), _) => p,
-        (None, Some(_)) => PLANNED_PASSES.ceil() as u32,
-        (None, None) => 1,
-    };
-    settings.spp.max(1).saturating_mul(passes)
-}
-
-/// Which pass a camera pass is, when it must have ended, its weight in the average, and the
-/// samples per pixel of its pixels' runs ([`RenderSettings::pixel_run`], fixed for a render).
+/// Which pass a camera pass is, when it must have ended, and its weight in the average.
 #[derive(Clone, Copy)]
 struct PassJob {
     pass: u32,
     cut: Cut,
     weight: f32,
-    pixel_run: u32,
 }
 
 /// Add pass `pass` of `camera` to `acc` (cut at `job.cut`); returns its seconds and the
@@ -1316,15 +1297,9 @@ fn render_pass(
     acc: &mut Accumulator,
     progress: &Progress<'_>,
 ) -> (f64, u32) {
-    let PassJob {
-        pass,
-        cut,
-        weight,
-        pixel_run,
-    } = job;
+    let PassJob { pass, cut, weight } = job;
     let rs = RenderSettings {
         first_sample: acc.samples(),
-        pixel_run,
         ..render_settings(camera, settings, pass)
     };
     progress.camera(&camera.name);
@@ -1411,7 +1386,6 @@ pub fn render_camera(
             required: 0,
         },
         weight: 1.0,
-        pixel_run: planned_samples(settings),
     };
     render_pass(scene, &prepared.accel, input, job, camera, settings, &mut acc, progress);
     acc.film()

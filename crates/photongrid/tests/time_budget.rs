@@ -27,7 +27,6 @@ fn render_settings(settings: &Settings, spp: u32, gather: u32) -> photongrid::re
         seed: 1,
         sequence_seed: 1,
         first_sample: 0,
-        pixel_run: spp,
         gather,
         gather_bright: settings.gather_bright,
     }

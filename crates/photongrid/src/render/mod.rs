@@ -53,10 +53,6 @@ pub struct RenderSettings {
     /// Index of this pass's first sample in each pixel's sequence (the samples per pixel the
     /// earlier passes took), so that the passes together stay stratified.
     pub first_sample: u32,
-    /// Samples per pixel of one run of the points its gathers take from its tile's sequence
-    /// ([`GatherPoints`]): the render's planned samples per pixel, so that the run is full at
-    /// its end.
-    pub pixel_run: u32,
     /// Final-gather rays per camera sample (0: none).
     pub gather: u32,
     /// Share of them aimed at bright surfaces ([`crate::estimate::bright`]).
@@ -117,73 +113,90 @@ impl Drop for Tracer<'_> {
     }
 }
 
-/// The final-gather directions of one camera sample. The pixels of a tile of
-/// 2^[`TILE_BITS`] × 2^[`TILE_BITS`] share one Owen-scrambled Sobol sequence, in Morton order
-/// of the pixels: a pixel's run holds [`RenderSettings::pixel_run`] samples' gathers in turn,
-/// so a pixel's gathers over samples and passes go on filling its hemisphere (independent
-/// random directions left the smooth indirect light of a concave room grainy), and
-/// neighbouring pixels' runs fill it together, so the error of an area's average falls faster
-/// than its pixels' (Ahmed and Wonka 2020, screen-space blue noise from Morton-ordered pixels).
+/// The final-gather directions of one camera sample. A pixel's first [`TILE_RUN`] samples
+/// take their gathers from a sequence its 2^[`TILE_BITS`] × 2^[`TILE_BITS`] tile shares: one
+/// Owen-scrambled Sobol sequence in Morton order of the pixels, each pixel a run of those
+/// samples' gathers in turn. Each gather is a net, a pixel's run is a net, and so is every
+/// aligned square of pixels' runs, so the error of an area's average falls faster than its
+/// pixels' (Ahmed and Wonka 2020, screen-space blue noise from Morton-ordered pixels). Later
+/// samples continue the pixel's own sequence, so a long render's gathers go on filling each
+/// pixel's hemisphere (independent random directions left the smooth indirect light of a
+/// concave room grainy). Neither depends on how many passes or samples the render will take,
+/// so a render stopped after n passes is the n-pass render.
+///
 /// Each pixel visits its run in its own shuffled order (the offset within the run XORed with a
-/// per-pixel key, which keeps every aligned power-of-two part of the run a net): where a
-/// gather takes fewer points than its stride (some rays aimed at bright planes) or a render
-/// fewer samples than its run, the points left out differ from pixel to pixel, instead of
-/// leaving the same gap in every pixel of the tile. Samples past the run start the next,
-/// scrambled anew. Every gather of the sample (both glass branches) reads the same points:
+/// per-pixel hash, which keeps every aligned power-of-two part of the run a net). A render of
+/// fewer samples than the run, or a gather of fewer points than its stride (some rays aimed at
+/// bright planes), then leaves out parts that differ from pixel to pixel. Leaving the same part
+/// out in every pixel of the tile made a block's mean of a smooth sky 5 to 20 times worse than
+/// independent nets; hashed parts leave it 0.75 to 1.3 times theirs (unit test), and whole
+/// runs 0.005 times. Every gather of the sample (both glass branches) reads the same points:
 /// different integrands, each unbiased.
 #[derive(Clone, Copy, Default)]
 struct GatherPoints {
     scramble: u64,
-    /// The pixel's run: its first point, its shuffle (below its length) and where this
-    /// sample's gather starts in it.
+    /// The point before this sample's first (its run's, or 0 in the pixel's own sequence),
+    /// the run's shuffle (0 outside a run) and where this sample's gather starts in it.
     run_start: u32,
     shuffle: u32,
     offset: u32,
 }
 
-/// Pixels per side of a tile sharing one gather sequence, as a power of two: its Morton index
-/// takes 12 bits of the 32-bit point index, leaving 20 for a run.
+/// Pixels per side of a tile sharing one gather sequence, as a power of two.
 const TILE_BITS: u32 = 6;
+
+/// Samples per pixel that take their gathers from the tile's sequence: a 15 s budget's two
+/// passes take about this many (docs/time_budget.md). With at most [`MAX_GATHER`] points per
+/// sample, a tile's 2^12 runs fit the 32-bit point index.
+const TILE_RUN: u32 = 8;
 
 impl GatherPoints {
     /// The gather directions of sample `s` of this pass at pixel (x, y).
     fn of(settings: &RenderSettings, x: usize, y: usize, s: u32) -> Self {
-        Self::in_tile(settings, (stream::GATHER, settings.gather), x, y, s)
+        Self::at(settings, (stream::GATHER, settings.gather), x, y, s)
     }
 
     /// The points of the rays sample `s` aims at bright planes (at most `gather × gather_bright`).
     fn aimed(settings: &RenderSettings, x: usize, y: usize, s: u32) -> Self {
         let most = (settings.gather as f32 * settings.gather_bright).round() as u32;
-        Self::in_tile(settings, (stream::AIMED, most), x, y, s)
+        Self::at(settings, (stream::AIMED, most), x, y, s)
     }
 
-    /// Sample `s`'s `points` from the tile's sequence for `purpose` (a [`stream`] key). The
-    /// stride (points per sample) is `points` rounded up to a power of two, so each sample's
-    /// points are a (0, m, 2)-net, and a run the planned samples rounded up likewise (within
-    /// the 20 bits); the scramble is keyed by the tile, the stride and the run, so passes with
-    /// other gather counts and later runs do not reuse the same points.
-    fn in_tile(settings: &RenderSettings, (purpose, points): (u64, u32), x: usize, y: usize, s: u32) -> Self {
+    /// Sample `s`'s `points` for `purpose` (a [`stream`] key), from the tile's sequence or the
+    /// pixel's own. The stride (points per sample) is `points` rounded up to a power of two, so
+    /// each sample's points are a (0, m, 2)-net; the scrambles are keyed by it, so passes with
+    /// other gather counts do not reuse the same points.
+    fn at(settings: &RenderSettings, (purpose, points): (u64, u32), x: usize, y: usize, s: u32) -> Self {
         let stride = points.clamp(1, MAX_GATHER).next_power_of_two();
-        let longest = (1 << (32 - 2 * TILE_BITS)) / stride;
-        let run = settings.pixel_run.clamp(1, longest).next_power_of_two();
+        let strides = u64::from(stride.trailing_zeros());
         let sample = settings.first_sample.wrapping_add(s);
+        let seed = settings.sequence_seed;
+        if sample >= TILE_RUN {
+            let key = pixel_index(settings, x, y) | strides << 48;
+            return GatherPoints {
+                scramble: sampling::pixel_scramble(seed, purpose, key),
+                run_start: 0,
+                shuffle: 0,
+                offset: sample.wrapping_mul(stride),
+            };
+        }
         let mask = (1 << TILE_BITS) - 1;
         let tile = (x >> TILE_BITS) as u64 | ((y >> TILE_BITS) as u64) << 16;
-        let key = tile | u64::from(stride.trailing_zeros()) << 32 | u64::from(sample / run) << 40;
-        let scramble = sampling::pixel_scramble(settings.sequence_seed, purpose, key);
+        // Bit 40 keeps tiles' keys apart from pixels' (pixel indices are below 2^28).
+        let scramble = sampling::pixel_scramble(seed, purpose, tile | strides << 32 | 1 << 40);
         let pixel = sampling::morton2((x & mask) as u32, (y & mask) as u32);
-        let length = run * stride;
+        let length = TILE_RUN * stride;
         GatherPoints {
             scramble,
             run_start: pixel * length,
             shuffle: sampling::mix64(scramble ^ u64::from(pixel)) as u32 & (length - 1),
-            offset: sample % run * stride,
+            offset: sample * stride,
         }
     }
 
     /// The `j`-th direction's point in [0,1)² (`j` below the stride).
     fn point(&self, j: u32) -> Vec2 {
-        let index = self.run_start + ((self.offset + j) ^ self.shuffle);
+        let index = self.run_start.wrapping_add(self.offset.wrapping_add(j) ^ self.shuffle);
         sampling::owen_sobol(index, self.scramble)
     }
 }
@@ -663,9 +676,9 @@ fn first_hit_aov(aov: &mut Option<&mut Aov>, sp: &SurfacePoint, t: f32) {
 mod tests {
     use super::*;
 
-    /// A pass's settings with `gather` rays per gather, runs of `pixel_run` samples and the
-    /// render's sequences keyed by `seed`.
-    fn pass(gather: u32, pixel_run: u32, seed: u64) -> RenderSettings {
+    /// A pass's settings with `gather` rays per gather and the render's sequences keyed by
+    /// `seed`.
+    fn pass(gather: u32, seed: u64) -> RenderSettings {
         RenderSettings {
             width: 256,
             height: 256,
@@ -677,7 +690,6 @@ mod tests {
             seed,
             sequence_seed: seed,
             first_sample: 0,
-            pixel_run,
             gather,
             gather_bright: 0.0,
         }
@@ -696,16 +708,27 @@ mod tests {
         })
     }
 
-    /// Points `0..count` of each of `samples` samples at each pixel of `pixels`.
-    fn points(rs: &RenderSettings, pixels: &[(usize, usize)], samples: u32, count: u32) -> Vec<Vec2> {
+    /// Points `0..count` of samples `samples` at each pixel of `pixels`, of `kind` (the
+    /// gather's directions or the aimed rays').
+    fn points_of(
+        kind: fn(&RenderSettings, usize, usize, u32) -> GatherPoints,
+        rs: &RenderSettings,
+        pixels: &[(usize, usize)],
+        samples: std::ops::Range<u32>,
+        count: u32,
+    ) -> Vec<Vec2> {
         let mut out = Vec::new();
         for &(x, y) in pixels {
-            for s in 0..samples {
-                let p = GatherPoints::of(rs, x, y, s);
+            for s in samples.clone() {
+                let p = kind(rs, x, y, s);
                 out.extend((0..count).map(|j| p.point(j)));
             }
         }
         out
+    }
+
+    fn points(rs: &RenderSettings, pixels: &[(usize, usize)], samples: std::ops::Range<u32>, count: u32) -> Vec<Vec2> {
+        points_of(GatherPoints::of, rs, pixels, samples, count)
     }
 
     fn block(x0: usize, y0: usize, side: usize) -> Vec<(usize, usize)> {
@@ -714,47 +737,60 @@ mod tests {
 
     #[test]
     fn gathers_samples_runs_and_blocks_of_pixels_are_nets() {
+        let run = 0..TILE_RUN;
         for (gather, stride) in [(8u32, 8u32), (5, 8), (16, 16)] {
-            let rs = pass(gather, 4, 3);
-            // Each gather; each pixel's run of 4 samples (and a later run's first gather).
-            for s in [0, 1, 3, 4, 1001] {
-                let p = GatherPoints::of(&rs, 77, 140, s);
-                let one: Vec<Vec2> = (0..stride).map(|j| p.point(j)).collect();
-                assert!(is_net(&one), "{gather} {s}");
+            let rs = pass(gather, 3);
+            // Each gather, in the tile's run and in the pixel's own sequence after it.
+            for s in [0, 1, 7, 8, 9, 1001] {
+                assert!(is_net(&points(&rs, &[(77, 140)], s..s + 1, stride)), "{gather} {s}");
             }
-            assert!(is_net(&points(&rs, &[(77, 140)], 4, stride)), "{gather}");
+            // A pixel's run, and its own sequence's next samples.
+            assert!(is_net(&points(&rs, &[(77, 140)], run.clone(), stride)), "{gather}");
+            assert!(is_net(&points(&rs, &[(77, 140)], 8..16, stride)), "{gather}");
             // A 2×2 and an 8×8 block of pixels together, whole runs.
-            assert!(is_net(&points(&rs, &block(76, 140, 2), 4, stride)), "{gather}");
-            assert!(is_net(&points(&rs, &block(64, 136, 8), 4, stride)), "{gather}");
+            assert!(
+                is_net(&points(&rs, &block(76, 140, 2), run.clone(), stride)),
+                "{gather}"
+            );
+            assert!(
+                is_net(&points(&rs, &block(64, 136, 8), run.clone(), stride)),
+                "{gather}"
+            );
         }
-        let first = |x, y, s, gather| GatherPoints::of(&pass(gather, 4, 3), x, y, s).point(0);
+        let first = |x, y, s, gather| GatherPoints::of(&pass(gather, 3), x, y, s).point(0);
         assert_ne!(first(1, 0, 0, 8), first(2, 0, 0, 8));
         assert_ne!(first(1, 0, 0, 8), first(1, 0, 1, 8));
-        // The next run and another tile are scrambled anew.
-        assert_ne!(first(1, 0, 0, 8), first(1, 0, 4, 8));
-        let next = GatherPoints::of(&pass(8, 4, 3), 1, 0, 4);
-        assert_ne!(next.scramble, GatherPoints::of(&pass(8, 4, 3), 1, 0, 0).scramble);
-        assert_ne!(next.scramble, GatherPoints::of(&pass(8, 4, 3), 65, 0, 4).scramble);
-        // Another gather count (another pass's plan) draws other points, not the same ones again.
+        assert_ne!(first(1, 0, 8, 8), first(2, 0, 8, 8));
+        // Another tile is scrambled anew; so is another gather count (another pass's plan).
+        let tile = |x| GatherPoints::of(&pass(8, 3), x, 0, 0).scramble;
+        assert_ne!(tile(1), tile(65));
         assert_ne!(first(1, 0, 0, 8), first(1, 0, 0, 16));
+        // A sample's points do not depend on how the samples are split into passes.
+        let later = RenderSettings {
+            first_sample: 6,
+            ..pass(8, 3)
+        };
+        for s in 0..4 {
+            assert_eq!(
+                points(&later, &[(9, 9)], s..s + 1, 8),
+                points(&pass(8, 3), &[(9, 9)], s + 6..s + 7, 8)
+            );
+        }
         // The aimed rays' points (one per sample at an eighth of 8 rays): a pixel's run, a block.
         let rs = RenderSettings {
             gather_bright: 0.125,
-            ..pass(8, 4, 3)
+            ..pass(8, 3)
         };
-        let aimed = |pixels: &[(usize, usize)]| -> Vec<Vec2> {
-            let rs = &rs;
-            let run = |&(x, y): &(usize, usize)| (0..4).map(move |s| GatherPoints::aimed(rs, x, y, s).point(0));
-            pixels.iter().flat_map(run).collect()
-        };
+        let aimed = |pixels: &[(usize, usize)]| points_of(GatherPoints::aimed, &rs, pixels, run.clone(), 1);
         assert!(is_net(&aimed(&[(77, 140)])));
         assert!(is_net(&aimed(&block(64, 136, 8))));
-        assert_ne!(aimed(&[(77, 140)]), points(&rs, &[(77, 140)], 4, 1));
+        assert_ne!(aimed(&[(77, 140)]), points(&rs, &[(77, 140)], run.clone(), 1));
     }
 
     /// What sharing a tile's sequence is for: the average of an 8×8 block of pixels gathering
-    /// the same smooth light is far less noisy than if each pixel's gathers were a net of its
-    /// own (another tile's: independent scrambles), and unbiased.
+    /// the same smooth light over whole runs is far less noisy than if each pixel's gathers
+    /// were a net of its own (another tile's: independent scrambles), and unbiased; over parts
+    /// of runs it is about as noisy.
     #[test]
     fn a_blocks_shared_gathers_average_out_faster_than_independent_ones() {
         let radiance = |d: Vec3| 1.0 + d.x + 0.5 * d.y * d.y;
@@ -766,24 +802,31 @@ mod tests {
                 .sum::<f64>()
                 / points.len() as f64
         };
-        let (mut se_shared, mut se_own, mut sum_shared) = (0.0, 0.0, 0.0);
         let trials = 200;
-        for t in 0..trials {
-            let rs = pass(8, 1, t);
-            let shared = mean_of(&points(&rs, &block(0, 0, 8), 1, 8));
-            // The first pixel of 64 other tiles.
-            let own: Vec<Vec2> = (1..=64).flat_map(|i| points(&rs, &[(64 * i, 0)], 1, 8)).collect();
-            sum_shared += shared;
-            se_shared += (shared - truth as f64).powi(2);
-            se_own += (mean_of(&own) - truth as f64).powi(2);
+        // Whole runs, and renders of a half, a quarter and an eighth of a run.
+        for samples in [TILE_RUN, 4, 2, 1] {
+            let (mut se_shared, mut se_own, mut sum_shared) = (0.0, 0.0, 0.0);
+            for t in 0..trials {
+                let rs = pass(8, t);
+                let shared = mean_of(&points(&rs, &block(0, 0, 8), 0..samples, 8));
+                // The first pixel of 64 other tiles.
+                let own: Vec<Vec2> = (1..=64)
+                    .flat_map(|i| points(&rs, &[(64 * i, 0)], 0..samples, 8))
+                    .collect();
+                sum_shared += shared;
+                se_shared += (shared - truth as f64).powi(2);
+                se_own += (mean_of(&own) - truth as f64).powi(2);
+            }
+            let mean = sum_shared / trials as f64;
+            let sd = (se_shared / trials as f64).sqrt();
+            assert!(
+                (mean - truth as f64).abs() < 4.0 * sd / (trials as f64).sqrt() + 1e-6,
+                "{samples}: mean {mean}"
+            );
+            // Whole runs: far better; parts of runs: about as good, never much worse.
+            let most = if samples == TILE_RUN { 0.1 } else { 2.0 };
+            assert!(se_shared < most * se_own, "{samples}: shared {se_shared}, own {se_own}");
         }
-        let mean = sum_shared / trials as f64;
-        let sd = (se_shared / trials as f64).sqrt();
-        assert!(
-            (mean - truth as f64).abs() < 4.0 * sd / (trials as f64).sqrt() + 1e-6,
-            "mean {mean}"
-        );
-        assert!(se_shared < 0.1 * se_own, "shared {se_shared}, own {se_own}");
     }
 
     /// What the stratification is for: the cosine-weighted mean of a smooth radiance over the
@@ -799,7 +842,7 @@ mod tests {
         let trials = 4000;
         let mut rng = Rng::keyed(1, 2, 3);
         for t in 0..trials {
-            let p = GatherPoints::of(&pass(8, 1, 9), 64 * t as usize, 0, 0); // a tile each
+            let p = GatherPoints::of(&pass(8, 9), 64 * t as usize, 0, 0); // a tile each
             let strat: f32 = (0..8)
                 .map(|j| radiance(sampling::cosine_hemisphere(p.point(j), n)))
                 .sum::<f32>()
