@@ -7,26 +7,16 @@ with the reference's own noise), all relative to the reference's masked mean (%)
     python3 bench/seed_noise.py REF.exr MASK.exr SEED1.exr SEED2.exr
 
 Needs numpy and OpenEXR (`pip install numpy openexr`); reads EXRs and blocks as
-../shared/tools/score.py does.
+../shared/tools/score.py does (tools/image_stats.py).
 """
 import json
+import os
 import sys
 
 import numpy as np
-import OpenEXR
 
-LUM = np.array([0.2126, 0.7152, 0.0722])
-
-
-def read(path):
-    ch = OpenEXR.File(path, separate_channels=True).channels()
-    pick = lambda c: next(n for n in ch if n == c or n.endswith('.' + c))
-    return np.stack([np.asarray(ch[pick(c)].pixels, dtype=np.float64) for c in 'RGB'], -1)
-
-
-def blocks(x, b=8):
-    h, w = x.shape[0] // b * b, x.shape[1] // b * b
-    return x[:h, :w].reshape(h // b, b, w // b, b).mean(axis=(1, 3))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'tools'))
+from image_stats import LUMINANCE as LUM, blocks, read  # noqa: E402
 
 
 def main():

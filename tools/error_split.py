@@ -16,24 +16,13 @@ Needs numpy and OpenEXR (as ../shared/tools/score.py).
 """
 
 import argparse
+import os
+import sys
 
 import numpy as np
-import OpenEXR
 
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
-
-
-def read(path):
-    """An EXR's RGB (or its only channel) as float64."""
-    channels = OpenEXR.File(path, separate_channels=True).channels()
-    names = [n for n in ("R", "G", "B") if n in channels]
-    if not names:
-        names = [next(iter(channels))]
-    return np.stack([channels[n].pixels.astype(np.float64) for n in names], axis=-1)
-
-
-def luminance(image):
-    return image[..., :3] @ LUMINANCE if image.shape[-1] >= 3 else image[..., 0]
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from image_stats import BLOCK, blocks, luminance, read  # noqa: E402
 
 
 def main():
@@ -65,13 +54,6 @@ def main():
         print(f"  render's bias    {pct(bias):6.2f} %  (what is left)")
 
 
-BLOCK = 8
-
-
-def blocks(x):
-    """Means of the image's whole BLOCK x BLOCK blocks."""
-    h, w = x.shape[0] // BLOCK * BLOCK, x.shape[1] // BLOCK * BLOCK
-    return x[:h, :w].reshape(h // BLOCK, BLOCK, w // BLOCK, BLOCK).mean(axis=(1, 3))
 
 if __name__ == "__main__":
     main()

@@ -46,6 +46,9 @@ import sys
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(HERE, '..', '..', 'tools'))
+from image_stats import blocks  # noqa: E402
+
 LUM = np.array([0.2126, 0.7152, 0.0722])
 SUB = 8  # sub-pixel samples per axis
 
@@ -54,11 +57,6 @@ def read_exr(path):
     import OpenEXR
     ch = OpenEXR.File(path, separate_channels=True).channels()
     return np.stack([np.asarray(ch[c].pixels, dtype=np.float64) for c in "RGB"], axis=-1)
-
-
-def blocks(x, b):
-    h, w = x.shape[0] // b * b, x.shape[1] // b * b
-    return x[:h, :w].reshape(h // b, b, w // b, b).mean(axis=(1, 3))
 
 
 def compare(img, ref, keep=None, blk=8):

@@ -27,7 +27,9 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, '..', '..', '..', 'shared', 'tools'))
 sys.path.insert(0, HERE)
+sys.path.insert(0, os.path.join(HERE, '..', '..', 'tools'))
 from punctual_regions import BLACK, emissive, read_glb, write_glb  # noqa: E402
+from image_stats import blocks  # noqa: E402
 
 ROOMS = ['mat_spheres', 'mat_punctual', 'mat_leaves']
 BLOCK = 8
@@ -73,11 +75,6 @@ def lambert(scene, out, flat=False):
     if 'KHR_materials_specular' not in used:
         used.append('KHR_materials_specular')
     write_glb(out, j, b)
-
-
-def blocks(x):
-    h, w = x.shape[0] // BLOCK * BLOCK, x.shape[1] // BLOCK * BLOCK
-    return x[:h, :w].reshape(h // BLOCK, BLOCK, w // BLOCK, BLOCK).mean(axis=(1, 3))
 
 
 def score(scene, maskdir, img_path, ref_path=None):

@@ -273,7 +273,8 @@ pub mod stream {
     pub const PIXEL: u64 = 3;
     /// Per-pixel scrambling of the emission-only rays at emitter edges.
     pub const EDGE_RAYS: u64 = 5;
-    /// Per-pixel scrambling of the final-gather directions.
+    /// Scrambling of the final-gather directions: per tile for a pixel's first samples, per
+    /// pixel after (`render::GatherPoints`).
     pub const GATHER: u64 = 6;
     /// Per-tile scrambling of the points final-gather rays aimed at bright planes pick.
     pub const AIMED: u64 = 7;
