@@ -1140,7 +1140,9 @@ fn trace_pass(
         max_depth: settings.photon_hits(),
         store_direct: settings.direct == DirectLighting::Photons || gather > 0,
         seed: pass_seed(settings.seed, pass),
-        record_triangles: needs.photon_triangles,
+        // Gathering's irradiance points measure the surface under their discs on the photon's
+        // triangle.
+        record_triangles: needs.photon_triangles || gather > 0,
         caustic_photons: caustic_photons(scene, settings),
     };
     let phase = progress.phase("photons", settings.photons as u64);
@@ -1170,6 +1172,7 @@ fn trace_pass(
         let _s = tracing::info_span!("irradiance").entered();
         let cache = irradiance_cache(
             scene,
+            accel,
             settings,
             &photons,
             &photon_triangles,
@@ -1200,6 +1203,7 @@ fn trace_pass(
 /// gathering may show.
 fn irradiance_cache(
     scene: &Scene,
+    accel: &Accel,
     settings: &Settings,
     photons: &[Photon],
     photon_triangles: &[u32],
@@ -1210,29 +1214,25 @@ fn irradiance_cache(
     // directly: keep the paths within `max_depth` segments (`Settings::gathered`). Gather
     // rays that land on a multiscale plane's lit side read the pyramids, so only the other
     // photons are indexed and turned into irradiance points.
-    let gathered: Vec<Photon> = match multiscale {
-        Some(g) => photons
-            .iter()
-            .zip(photon_triangles)
-            .filter(|(p, &t)| settings.gathered(p.depth()) && g.texture_facing(t, p.normal()).is_none())
-            .map(|(p, _)| *p)
-            .collect(),
-        None => photons
-            .iter()
-            .filter(|p| settings.gathered(p.depth()))
-            .copied()
-            .collect(),
-    };
-    let all = PhotonMap::build(gathered, settings.gather_neighbours, scene.surface_area(), max_radius);
-    IrradianceCache::build(
-        &all,
-        settings.gather_neighbours,
-        settings.gather_stride,
-        scene.surface_area(),
-    )
+    let stride = settings.gather_stride.max(1);
+    let (mut gathered, mut sites) = (Vec::new(), Vec::new());
+    for (p, &t) in photons.iter().zip(photon_triangles) {
+        if settings.gathered(p.depth()) && multiscale.is_none_or(|g| g.texture_facing(t, p.normal()).is_none()) {
+            if gathered.len() % stride == 0 {
+                sites.push((*p, t));
+            }
+            gathered.push(*p);
+        }
+    }
+    let k = settings.gather_neighbours;
+    let all = PhotonMap::build(gathered, k, scene.surface_area(), max_radius);
+    let surfaces = Surfaces::new(scene, accel, settings);
+    IrradianceCache::build(&all, &sites, k, &surfaces, scene.surface_area())
 }
 
-/// gathering reads it from precomputed irradiance instead.
+/// The photons the camera reads, with their triangles: caustics always, direct light in the
+/// single-map mode, indirect light only without final gathering (which reads it from the
+/// precomputed irradiance instead).
 fn shown_photons(settings: &Settings, photons: Vec<Photon>, triangles: Vec<u32>) -> (Vec<Photon>, Vec<u32>) {
     let direct_photons = settings.direct == DirectLighting::Photons;
     let gather = settings.effective_gather() > 0;

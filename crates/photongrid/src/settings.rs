@@ -133,7 +133,8 @@ pub struct Settings {
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Light paths", value_parser = parse_count, default_value_t = Settings::default().gather_neighbours))]
     #[serde(deserialize_with = "count::deserialize")]
     pub gather_neighbours: usize,
-    /// Every how many photons an irradiance point is precomputed (final gathering).
+    /// Every how many photons (of those final gathering reads) an irradiance point is
+    /// precomputed.
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Light paths", value_parser = parse_count, default_value_t = Settings::default().gather_stride))]
     #[serde(deserialize_with = "count::deserialize")]
     pub gather_stride: usize,
@@ -289,7 +290,7 @@ impl Default for Settings {
             split_depth: 2,
             gather: 8,
             gather_neighbours: 64,
-            gather_stride: 4,
+            gather_stride: 8,
             gather_bright: 0.125,
             passes: None,
             time: None,
