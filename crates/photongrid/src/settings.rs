@@ -290,7 +290,7 @@ impl Default for Settings {
             split_depth: 2,
             gather: 8,
             gather_neighbours: 64,
-            gather_stride: 8,
+            gather_stride: 12,
             gather_bright: 0.125,
             passes: None,
             time: None,
