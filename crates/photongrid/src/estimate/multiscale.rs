@@ -102,13 +102,50 @@ pub fn curvature_bias(kernel: &Texel, h: [f32; 3]) -> f32 {
 /// average, which adds the same constant to every texel of a quadratic: the differences see
 /// the light's own curvature.
 pub fn block_hessian(block: &[[&Texel; 3]; 3], side: f32) -> [f32; 3] {
-    let m = |i: usize, j: usize| luminance(block[j][i].flux) / block[j][i].area;
+    means_hessian(block.map(|row| row.map(texel_mean)), side)
+}
+
+/// A texel's mean irradiance (luminance).
+fn texel_mean(t: &Texel) -> f32 {
+    luminance(t.flux) / t.area
+}
+
+/// [`block_hessian`] of a 3×3 block's means (rows along y).
+fn means_hessian(m: [[f32; 3]; 3], side: f32) -> [f32; 3] {
     let s2 = side * side;
     [
-        (m(2, 1) - 2.0 * m(1, 1) + m(0, 1)) / s2,
-        (m(2, 2) - m(0, 2) - m(2, 0) + m(0, 0)) / (4.0 * s2),
-        (m(1, 2) - 2.0 * m(1, 1) + m(1, 0)) / s2,
+        (m[1][2] - 2.0 * m[1][1] + m[1][0]) / s2,
+        (m[2][2] - m[2][0] - m[0][2] + m[0][0]) / (4.0 * s2),
+        (m[2][1] - 2.0 * m[1][1] + m[0][1]) / s2,
     ]
+}
+
+/// The Hessian ([`block_hessian`]) of `t`'s texel means on `level` at fine grid coordinates
+/// `(gx, gy)`: those of the full 3×3 blocks centred on the four texels nearest the point,
+/// blended bilinearly, so that the correction varies smoothly. Read from the one block around
+/// the point, it stepped at every texel edge, and a flat wall showed rectangles a few per cent
+/// apart (the README sample's box). The blocks lie in a 4×4 patch of texels
+/// ([`LayerTexture::full_patch`]); where no patch near the point lies on the surface, the one
+/// block around it ([`LayerTexture::full_block`]). None where no block is full.
+fn blended_hessian(t: &LayerTexture, level: usize, gx: f32, gy: f32) -> Option<[f32; 3]> {
+    let side = (1u32 << level) as f32;
+    let Some((patch, [fu, fv])) = t.full_patch(level, gx, gy, INTERIOR_COVERAGE) else {
+        // Ragged coverage: the one block around the point.
+        return Some(block_hessian(&t.full_block(level, gx, gy, INTERIOR_COVERAGE)?, side));
+    };
+    // The Hessian is linear in the means: blend the means, then difference once.
+    let m = patch.map(|row| row.map(texel_mean));
+    let lerp = |a: f32, b: f32, f: f32| a + f * (b - a);
+    let blended = std::array::from_fn(|b| {
+        std::array::from_fn(|a| {
+            lerp(
+                lerp(m[b][a], m[b][a + 1], fu),
+                lerp(m[b + 1][a], m[b + 1][a + 1], fu),
+                fv,
+            )
+        })
+    });
+    Some(means_hessian(blended, side))
 }
 
 /// The largest relative curvature correction applied; a larger one means the block the
@@ -455,10 +492,10 @@ impl MultiscaleGrids {
     }
 
     /// A global layer's estimate less its kernel's curvature bias ([`curvature_bias`]), the
-    /// curvature read from the 3×3 block of full texels one level coarser around the point
-    /// (their means hold four times the photons of the kernel's texels, so the correction
-    /// adds little noise), else at the kernel's level (near an edge, where a coarser block
-    /// does not fit). Caustics are left as they are: their curvature is that of filaments
+    /// curvature read from the 3×3 blocks of full texels one level coarser around the point,
+    /// blended ([`blended_hessian`]; their means hold four times the photons of the kernel's
+    /// texels, so the correction adds little noise), else at the kernel's level (near an edge,
+    /// where a coarser block does not fit). Caustics are left as they are: their curvature is that of filaments
     /// and outlines, which no block resolves.
     fn curvature_corrected(&self, t: &LayerTexture, layer: usize, p: Vec3, e: LayerEstimate) -> LayerEstimate {
         if layer == CAUSTIC {
@@ -466,13 +503,12 @@ impl MultiscaleGrids {
         }
         let (gx, gy) = t.plane.grid_coords(p);
         let coarser = (e.level + 1).min(t.level_count() - 1);
-        let Some((level, block)) = [coarser, e.level]
+        let Some(h) = [coarser, e.level]
             .into_iter()
-            .find_map(|l| Some((l, t.full_block(l, gx, gy, INTERIOR_COVERAGE)?)))
+            .find_map(|l| blended_hessian(t, l, gx, gy))
         else {
             return e;
         };
-        let h = block_hessian(&block, (1u32 << level) as f32);
         let passes = self.passes_of(layer);
         let value = crate::luminance(e.irradiance);
         let bias = curvature_bias(&e.kernel, h) / passes;
@@ -1058,6 +1094,52 @@ mod tests {
             ..kernel
         };
         assert!((curvature_bias(&shifted, h2) - (s * s / 12.0 - 0.5)).abs() < 1e-5);
+    }
+
+    /// Noisy flat light: the curvature read at a point moves smoothly with it (one block per
+    /// texel stepped at each texel edge) and equals the centred block's at a texel's centre,
+    /// in the interior and where the blocks are shifted off the plane's edge.
+    #[test]
+    fn the_curvature_moves_smoothly_across_texel_edges() {
+        let n = 200_000;
+        let power = Rgb::splat(4.0 / n as f32);
+        let g = square_grids(n, 5, |rng| {
+            let at = p(2.0 * rng.uniform(), 2.0 * rng.uniform());
+            Some(Photon::new(at, power, Vec3::Y, Vec3::Y, PhotonKind::Direct))
+        });
+        let t = &g.textures[0][DIRECT];
+        let level = 3;
+        let side = 8.0f32;
+        let cells = t.plane.res_u as f32;
+        assert!(cells >= 8.0 * side, "a grid of {cells} cells");
+        let at = |gx: f32, gy: f32| blended_hessian(t, level, gx, gy).expect("full blocks");
+        let block = |gx: f32, gy: f32| block_hessian(&t.full_block(level, gx, gy, INTERIOR_COVERAGE).unwrap(), side);
+        let close = |a: [f32; 3], b: [f32; 3], tol: f32| a.iter().zip(b).all(|(a, b)| (a - b).abs() <= tol);
+        let gy = 3.3 * side;
+        let mut largest_step = 0.0f32;
+        let mut spread = 0.0f32;
+        for k in 0..(cells / side) as usize {
+            // A texel's centre, then both sides of its upper edge.
+            let centre = (k as f32 + 0.5) * side;
+            let scale = block(centre, 3.5 * side).iter().fold(0.0f32, |m, h| m.max(h.abs()));
+            assert!(
+                close(
+                    at(centre, 3.5 * side),
+                    block(centre, 3.5 * side),
+                    1e-4 * scale.max(1e-6)
+                ),
+                "texel {k}"
+            );
+            spread = spread.max(scale);
+            let edge = (k + 1) as f32 * side;
+            let (a, b) = (at(edge - 1e-3, gy), at(edge + 1e-3, gy));
+            largest_step = largest_step.max(a.iter().zip(b).fold(0.0, |m, (a, b)| m.max((a - b).abs())));
+        }
+        assert!(spread > 0.0, "noise has curvature");
+        assert!(
+            largest_step < 1e-2 * spread,
+            "a step of {largest_step} where blocks differ by {spread}"
+        );
     }
 
     /// A point light 0.8 m above the middle of the square: the light peaks beneath it with

@@ -102,6 +102,13 @@ struct Level {
 }
 
 impl Level {
+    /// Texel `(i, j)` if it lies within the level and covers at least `area` of the surface.
+    fn full_texel(&self, i: isize, j: isize, area: f32) -> Option<&Texel> {
+        let inside = i >= 0 && j >= 0 && (i as usize) < self.w && (j as usize) < self.h;
+        let t = inside.then(|| &self.texels[j as usize * self.w + i as usize])?;
+        (t.area >= area).then_some(t)
+    }
+
     /// The next coarser level: sums of 2×2 blocks (a border block may have fewer cells);
     /// `side` is this level's texel side in fine cells (moments move to the block's centre).
     fn coarser(&self, side: f32) -> Level {
@@ -337,6 +344,21 @@ impl Resolved {
     }
 }
 
+/// The shifts (in texels, along x and y) a 3×3 block or 4×4 patch of texels is tried at, in
+/// order, until all its texels lie on the surface ([`LayerTexture::full_block`],
+/// [`LayerTexture::full_patch`]).
+const BLOCK_SHIFTS: [(isize, isize); 9] = [
+    (0, 0),
+    (-1, 0),
+    (1, 0),
+    (0, -1),
+    (0, 1),
+    (-1, -1),
+    (1, -1),
+    (-1, 1),
+    (1, 1),
+];
+
 impl LayerTexture {
     fn new(plane: Plane, sizing: Sizing, coverage: Vec<Texel>, edges: Edges) -> Self {
         let level = Level {
@@ -553,26 +575,51 @@ impl LayerTexture {
         let centre = |g: f32, n: usize| ((g / side).floor() as isize).clamp(1, n as isize - 2);
         let (ci, cj) = (centre(gx, lv.w), centre(gy, lv.h));
         let full = self.kernel_area(level) * coverage;
-        let texel = |i: isize, j: isize| -> Option<&Texel> {
-            let inside = i >= 0 && j >= 0 && (i as usize) < lv.w && (j as usize) < lv.h;
-            let t = inside.then(|| &lv.texels[j as usize * lv.w + i as usize])?;
-            (t.area >= full).then_some(t)
-        };
-        const SHIFTS: [(isize, isize); 9] = [
-            (0, 0),
-            (-1, 0),
-            (1, 0),
-            (0, -1),
-            (0, 1),
-            (-1, -1),
-            (1, -1),
-            (-1, 1),
-            (1, 1),
-        ];
-        SHIFTS.iter().find_map(|&(di, dj)| {
+        let texel = |i: isize, j: isize| lv.full_texel(i, j, full);
+        BLOCK_SHIFTS.iter().find_map(|&(di, dj)| {
             let (i, j) = (ci + di, cj + dj);
             let row = |y: isize| Some([texel(i - 1, y)?, texel(i, y)?, texel(i + 1, y)?]);
             Some([row(j - 1)?, row(j)?, row(j + 1)?])
+        })
+    }
+
+    /// The 4×4 patch of `level`'s texels (rows along y) that holds the 3×3 blocks centred on
+    /// the four texels nearest the point at fine grid coordinates `(gx, gy)`, and the point's
+    /// offset (0 to 1 along each axis) from the centre of the patch's second texel, which
+    /// weights those blocks bilinearly. Where a texel does not lie wholly on the surface
+    /// (`coverage`) the patch is shifted a texel towards the interior as
+    /// [`full_block`](Self::full_block) shifts its block, and near the grid's edge it is moved
+    /// inside; the offset is then held at the patch's end, so the blend stays continuous. A
+    /// level three texels wide has one block across, whose last column (or row) the patch
+    /// repeats with no weight. None where no such patch is full or the level is narrower than
+    /// three texels.
+    pub fn full_patch(&self, level: usize, gx: f32, gy: f32, coverage: f32) -> Option<([[&Texel; 4]; 4], [f32; 2])> {
+        let lv = &self.levels[level];
+        if lv.w < 3 || lv.h < 3 {
+            return None;
+        }
+        let side = (1u32 << level) as f32;
+        let (u, v) = (gx / side - 0.5, gy / side - 0.5);
+        // The first of the four texels, moved by `shift` and into the grid, and the offset
+        // past the centre of the second.
+        let start = |u: f32, shift: isize, n: usize| {
+            let first = (u.floor() as isize - 1 + shift).clamp(0, n.max(4) as isize - 4);
+            let offset = if n < 4 {
+                0.0
+            } else {
+                (u - (first + 1) as f32).clamp(0.0, 1.0)
+            };
+            (first, offset)
+        };
+        let (last_i, last_j) = (lv.w as isize - 1, lv.h as isize - 1);
+        let full = self.kernel_area(level) * coverage;
+        BLOCK_SHIFTS.iter().find_map(|&(di, dj)| {
+            let ((i, fu), (j, fv)) = (start(u, di, lv.w), start(v, dj, lv.h));
+            let row = |b: isize| -> Option<[&Texel; 4]> {
+                let t = |a: isize| lv.full_texel((i + a).min(last_i), (j + b).min(last_j), full);
+                Some([t(0)?, t(1)?, t(2)?, t(3)?])
+            };
+            Some(([row(0)?, row(1)?, row(2)?, row(3)?], [fu, fv]))
         })
     }
 
