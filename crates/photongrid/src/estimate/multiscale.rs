@@ -129,12 +129,11 @@ fn means_hessian(m: [[f32; 3]; 3], side: f32) -> [f32; 3] {
 /// block around it ([`LayerTexture::full_block`]). None where no block is full.
 fn blended_hessian(t: &LayerTexture, level: usize, gx: f32, gy: f32) -> Option<[f32; 3]> {
     let side = (1u32 << level) as f32;
-    let Some((patch, [fu, fv])) = t.full_patch(level, gx, gy, INTERIOR_COVERAGE) else {
+    let Some((m, [fu, fv])) = t.full_patch(level, gx, gy) else {
         // Ragged coverage: the one block around the point.
         return Some(block_hessian(&t.full_block(level, gx, gy, INTERIOR_COVERAGE)?, side));
     };
     // The Hessian is linear in the means: blend the means, then difference once.
-    let m = patch.map(|row| row.map(texel_mean));
     let lerp = |a: f32, b: f32, f: f32| a + f * (b - a);
     let blended = std::array::from_fn(|b| {
         std::array::from_fn(|a| {
@@ -311,7 +310,7 @@ impl Gammas {
 /// Share of a kernel's span that must lie on the surface for its indirect estimate to be
 /// used; below it the point is near the plane's edge and final gathering supplies indirect
 /// light.
-pub const INTERIOR_COVERAGE: f32 = 0.9;
+pub const INTERIOR_COVERAGE: f32 = crate::grid::multiscale::FULL_COVERAGE;
 
 /// Photons (over all passes) an interior kernel must hold for the photons' indirect estimate
 /// to be used when final gathering could supply it instead: fewer give blotches that cost

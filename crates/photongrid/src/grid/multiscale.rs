@@ -99,6 +99,11 @@ struct Level {
     w: usize,
     h: usize,
     texels: Vec<Texel>,
+    /// Per texel, its mean irradiance (luminance) where it lies wholly on the surface
+    /// ([`FULL_COVERAGE`]), else NaN; empty in the caustic layer. Kept beside the texels so
+    /// that the curvature read at every point ([`LayerTexture::full_patch`]) touches 4 bytes
+    /// a texel, not all its sums.
+    means: Vec<f32>,
 }
 
 impl Level {
@@ -121,7 +126,12 @@ impl Level {
                 texels[(y / 2) * w + x / 2].add(&child, 1.0);
             }
         }
-        Level { w, h, texels }
+        Level {
+            w,
+            h,
+            texels,
+            means: Vec::new(),
+        }
     }
 
     /// Bilinear interpolation of the texels at continuous texel coordinates (centres at
@@ -344,6 +354,11 @@ impl Resolved {
     }
 }
 
+/// Share of a texel's area that must lie on the surface for it to count as whole: for the
+/// curvature's blocks and patches, and for a kernel's indirect estimate to be used
+/// (`estimate::multiscale::INTERIOR_COVERAGE`).
+pub const FULL_COVERAGE: f32 = 0.9;
+
 /// The shifts (in texels, along x and y) a 3×3 block or 4×4 patch of texels is tried at, in
 /// order, until all its texels lie on the surface ([`LayerTexture::full_block`],
 /// [`LayerTexture::full_patch`]).
@@ -365,6 +380,7 @@ impl LayerTexture {
             w: plane.res_u,
             h: plane.res_v,
             texels: coverage,
+            means: Vec::new(),
         };
         LayerTexture {
             plane,
@@ -583,19 +599,19 @@ impl LayerTexture {
         })
     }
 
-    /// The 4×4 patch of `level`'s texels (rows along y) that holds the 3×3 blocks centred on
-    /// the four texels nearest the point at fine grid coordinates `(gx, gy)`, and the point's
-    /// offset (0 to 1 along each axis) from the centre of the patch's second texel, which
-    /// weights those blocks bilinearly. Where a texel does not lie wholly on the surface
-    /// (`coverage`) the patch is shifted a texel towards the interior as
+    /// The means ([`Level::means`]) of the 4×4 patch of `level`'s texels (rows along y) that
+    /// holds the 3×3 blocks centred on the four texels nearest the point at fine grid
+    /// coordinates `(gx, gy)`, and the point's offset (0 to 1 along each axis) from the centre
+    /// of the patch's second texel, which weights those blocks bilinearly. Where a texel does
+    /// not lie wholly on the surface the patch is shifted a texel towards the interior as
     /// [`full_block`](Self::full_block) shifts its block, and near the grid's edge it is moved
     /// inside; the offset is then held at the patch's end, so the blend stays continuous. A
     /// level three texels wide has one block across, whose last column (or row) the patch
-    /// repeats with no weight. None where no such patch is full or the level is narrower than
-    /// three texels.
-    pub fn full_patch(&self, level: usize, gx: f32, gy: f32, coverage: f32) -> Option<([[&Texel; 4]; 4], [f32; 2])> {
+    /// repeats with no weight. None where no such patch is full, the level is narrower than
+    /// three texels, or the layer keeps no means (caustics).
+    pub fn full_patch(&self, level: usize, gx: f32, gy: f32) -> Option<([[f32; 4]; 4], [f32; 2])> {
         let lv = &self.levels[level];
-        if lv.w < 3 || lv.h < 3 {
+        if lv.w < 3 || lv.h < 3 || lv.means.len() != lv.texels.len() {
             return None;
         }
         let side = (1u32 << level) as f32;
@@ -603,7 +619,7 @@ impl LayerTexture {
         // The first of the four texels, moved by `shift` and into the grid, and the offset
         // past the centre of the second.
         let start = |u: f32, shift: isize, n: usize| {
-            let first = (u.floor() as isize - 1 + shift).clamp(0, n.max(4) as isize - 4);
+            let first = (u.floor() as isize - 1 + shift).clamp(0, n.max(4) as isize - 4) as usize;
             let offset = if n < 4 {
                 0.0
             } else {
@@ -611,15 +627,19 @@ impl LayerTexture {
             };
             (first, offset)
         };
-        let (last_i, last_j) = (lv.w as isize - 1, lv.h as isize - 1);
-        let full = self.kernel_area(level) * coverage;
         BLOCK_SHIFTS.iter().find_map(|&(di, dj)| {
             let ((i, fu), (j, fv)) = (start(u, di, lv.w), start(v, dj, lv.h));
-            let row = |b: isize| -> Option<[&Texel; 4]> {
-                let t = |a: isize| lv.full_texel((i + a).min(last_i), (j + b).min(last_j), full);
-                Some([t(0)?, t(1)?, t(2)?, t(3)?])
-            };
-            Some(([row(0)?, row(1)?, row(2)?, row(3)?], [fu, fv]))
+            let mut m = [[0.0f32; 4]; 4];
+            for (b, row) in m.iter_mut().enumerate() {
+                let at = (j + b).min(lv.h - 1) * lv.w;
+                for (a, mean) in row.iter_mut().enumerate() {
+                    *mean = lv.means[at + (i + a).min(lv.w - 1)];
+                    if mean.is_nan() {
+                        return None;
+                    }
+                }
+            }
+            Some((m, [fu, fv]))
         })
     }
 
@@ -701,12 +721,29 @@ impl LayerTexture {
             let next = self.levels.last().expect("level").coarser(side);
             self.levels.push(next);
         }
+        if self.edges != Edges::Dark {
+            for level in 0..self.levels.len() {
+                let full = self.kernel_area(level) * FULL_COVERAGE;
+                let lv = &mut self.levels[level];
+                lv.means = lv
+                    .texels
+                    .iter()
+                    .map(|t| {
+                        if t.area >= full {
+                            luminance(Rgb::from(t.flux)) / t.area
+                        } else {
+                            f32::NAN
+                        }
+                    })
+                    .collect();
+            }
+        }
     }
 
     fn memory_bytes(&self) -> usize {
         self.levels
             .iter()
-            .map(|l| l.texels.len() * std::mem::size_of::<Texel>())
+            .map(|l| l.texels.len() * std::mem::size_of::<Texel>() + l.means.len() * 4)
             .sum::<usize>()
             + self.dark.len()
             + self.stashed.len() * std::mem::size_of::<(u32, Coverage)>()
