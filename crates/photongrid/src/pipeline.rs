@@ -14,7 +14,7 @@ use crate::photon::{trace_photons, Photon, PhotonKind, PhotonStats, TraceSetting
 use crate::progress::Progress;
 use crate::render::budget::{corrected, plan, Costs, PassSize, Plan, Stage, GATHER_LADDER};
 use crate::render::progressive::{Accumulator, Budget, Stop};
-use crate::render::{CameraPass, Cut, PhotonData, RenderSettings};
+use crate::render::{CameraPass, Cut, PhotonData, RenderSettings, Spare};
 use crate::sampling::pass_seed;
 use crate::scene::{Camera, Scene};
 use crate::settings::{DirectLighting, Settings, SettingsError};
@@ -134,6 +134,10 @@ pub struct PassReport {
     /// summed over cameras.
     #[serde(default)]
     pub samples_cut: u32,
+    /// Samples per pixel the last pass added beyond its own in the time before the deadline
+    /// that no further pass would use ([`crate::render::Spare`]).
+    #[serde(default)]
+    pub samples_spare: u32,
 }
 
 /// Memory use.
@@ -536,6 +540,7 @@ impl<'a> PassLoop<'a> {
     /// pass ran into the deadline: cut after its first sweeps (`samples_cut`) or dropped
     /// (`dropped`; never the first pass's first sweep: it is the image).
     fn pass(&mut self, done: u32, progress: &Progress<'_>, report: &mut RenderReport) -> bool {
+        let started = Instant::now();
         let (scene, accel, settings) = (self.scene, self.accel, &self.settings);
         let times = &mut report.seconds;
         let photons = trace_pass(scene, accel, settings, done, &mut self.grids, progress, times);
@@ -546,12 +551,23 @@ impl<'a> PassLoop<'a> {
                 .with_gather_rays(self.gather_rays),
             irradiance: photons.irradiance.as_ref(),
         };
-        let cut = Cut {
-            deadline: self.deadline,
-            required: u32::from(done == 0),
-        };
+        // After the first pass (whose successors are sized for the time it leaves) and without
+        // a pass count (which asks for that many passes, no more), the last camera takes spare
+        // sweeps where no pass of this size fits in the time left: a smaller last pass of one
+        // sample per pixel made the image worse on some scenes (docs/time_budget.md).
+        let spare = (done > 0 && settings.passes.is_none()).then_some(Spare {
+            since: started,
+            share: 1.0,
+            max: settings.spp.max(1),
+        });
+        let last = self.cameras.len().saturating_sub(1);
         let mut complete = true;
         for (i, (camera, acc)) in self.cameras.iter().zip(&mut self.accs).enumerate() {
+            let cut = Cut {
+                deadline: self.deadline,
+                required: u32::from(done == 0),
+                spare: spare.filter(|_| i == last),
+            };
             let job = PassJob {
                 pass: done,
                 cut,
@@ -570,6 +586,7 @@ impl<'a> PassLoop<'a> {
                 report.passes.samples_cut += spp - samples;
                 complete = false;
             }
+            report.passes.samples_spare += samples.saturating_sub(spp);
         }
         report.photons.add(&photons.stats);
         complete
@@ -1381,10 +1398,7 @@ pub fn render_camera(
     };
     let job = PassJob {
         pass: 0,
-        cut: Cut {
-            deadline: None,
-            required: 0,
-        },
+        cut: Cut::NONE,
         weight: 1.0,
     };
     render_pass(scene, &prepared.accel, input, job, camera, settings, &mut acc, progress);

@@ -85,10 +85,12 @@ pub struct Phase<'a> {
 }
 
 impl Phase<'_> {
-    /// Record `n` more units done.
+    /// Record `n` more units done. A phase that does more than its total (a camera pass's
+    /// spare sweeps) shows as complete.
     pub fn inc(&self, n: u64) {
         let done = self.done.fetch_add(n, Ordering::Relaxed) + n;
-        self.observer.advance(self.name, done, self.total);
+        let shown = if self.total > 0 { done.min(self.total) } else { done };
+        self.observer.advance(self.name, shown, self.total);
     }
 
     /// End the phase; returns its seconds.

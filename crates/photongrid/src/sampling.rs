@@ -278,6 +278,8 @@ pub mod stream {
     pub const GATHER: u64 = 6;
     /// Per-tile scrambling of the points final-gather rays aimed at bright planes pick.
     pub const AIMED: u64 = 7;
+    /// Camera samples of spare sweeps (beyond a pass's samples per pixel: `render::Spare`).
+    pub const SPARE_CAMERA: u64 = 8;
 }
 
 /// Point `index` in [0,1)² of a pixel's sequence (film positions, gather directions): the first

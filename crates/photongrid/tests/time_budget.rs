@@ -159,7 +159,11 @@ fn a_camera_pass_past_its_deadline_keeps_its_required_sweeps_only() {
         settings: &rs,
         gathering_points: None,
     };
-    let cut = |deadline, required| Cut { deadline, required };
+    let cut = |deadline, required| Cut {
+        deadline,
+        required,
+        spare: None,
+    };
     assert!(
         render_until(pass, &|_| {}, cut(past, 0), None).is_none(),
         "nothing required: dropped"
@@ -174,6 +178,87 @@ fn a_camera_pass_past_its_deadline_keeps_its_required_sweeps_only() {
     let plain = render(pass, &|_| {});
     assert_eq!(whole.film.color, plain.color);
     assert_ne!(first.film.color, plain.color);
+}
+
+#[test]
+fn spare_sweeps_take_only_time_no_other_pass_would_use_and_keep_the_pass_weight() {
+    use photongrid::estimate::{Accumulation, Estimator};
+    use photongrid::render::progressive::Accumulator;
+    use photongrid::render::{render_until, CameraPass, Cut, PhotonData, Spare};
+    let (scene, settings, prepared) = prepared_small();
+    let surfaces = photongrid::estimate::Surfaces::new(&scene, &prepared.accel, &settings);
+    let input = PhotonData {
+        estimator: Estimator::for_pass(&settings, 0, &prepared.map, prepared.grids.view(), &surfaces),
+        irradiance: prepared.irradiance.as_ref(),
+    };
+    let two = render_settings(&settings, 2, 2);
+    let pass = CameraPass {
+        scene: &scene,
+        accel: &prepared.accel,
+        photons: input,
+        camera: &scene.cameras[0],
+        settings: &two,
+        gathering_points: None,
+    };
+    let hour = Duration::from_secs(3600);
+    let cut = |since: Instant| Cut {
+        deadline: Some(Instant::now() + hour),
+        required: 1,
+        spare: Some(Spare {
+            since,
+            share: 1.0,
+            max: 3,
+        }),
+    };
+    // An hour left after a pass that began just now: another pass fits, no spare sweep.
+    let planned = render_until(pass, &|_| {}, cut(Instant::now()), None).unwrap();
+    assert_eq!(planned.samples, 2);
+    // The pass began two hours ago: the hour left is too short for another such pass, so the
+    // pass goes on, up to `max` more sweeps.
+    let long_ago = Instant::now() - 2 * hour;
+    let spared = render_until(pass, &|_| {}, cut(long_ago), None).unwrap();
+    assert_eq!(spared.samples, 5);
+    assert_eq!(spared.film.nonfinite(), 0);
+    assert_ne!(spared.film.color, planned.film.color);
+    let (a, b) = (spared.film.mean(), planned.film.mean());
+    assert!((a[1] / b[1] - 1.0).abs() < 0.1, "{a:?} vs {b:?}");
+    // In the average of passes a pass with spare sweeps weighs what its planned samples do.
+    let average = |second: Cut| {
+        let mut acc = Accumulator::new(Accumulation::Average, 32, 24, 2);
+        assert_eq!(acc.add_pass(pass, &|_| {}, Cut::NONE, 1.0), 2);
+        let next = CameraPass {
+            settings: &photongrid::render::RenderSettings {
+                first_sample: 2,
+                ..two.clone()
+            },
+            ..pass
+        };
+        let added = acc.add_pass(next, &|_| {}, second, 1.0);
+        (acc.film(), added)
+    };
+    let (with_spare, added) = average(cut(long_ago));
+    assert_eq!(added, 5);
+    let second = render_until(
+        CameraPass {
+            settings: &photongrid::render::RenderSettings {
+                first_sample: 2,
+                ..two.clone()
+            },
+            ..pass
+        },
+        &|_| {},
+        cut(long_ago),
+        None,
+    )
+    .unwrap();
+    assert_eq!(second.samples, 5);
+    for ((got, a), b) in with_spare.color.iter().zip(&planned.film.color).zip(&second.film.color) {
+        let want = (*a + *b) * 0.5;
+        assert!(
+            (*got - want).abs().max_element() <= 1e-5 * want.max_element().max(1.0),
+            "{got:?} vs {want:?}"
+        );
+    }
 }
 
 #[test]

@@ -19,7 +19,7 @@ use gather_lobe::GatherLobe;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 pub mod budget;
 pub mod emitter_edges;
@@ -260,31 +260,72 @@ pub struct CameraPass<'a> {
 /// per sample per pixel: the samples are rendered as whole-image sweeps). Without emitter
 /// edges ([`emitter_edges`]): the progressive [`progressive::Accumulator`] finds and uses them.
 pub fn render(pass: CameraPass<'_>, progress: &(dyn Fn(usize) + Sync)) -> Film {
-    let all = Cut {
-        deadline: None,
-        required: 0,
-    };
-    render_until(pass, progress, all, None)
+    render_until(pass, progress, Cut::NONE, None)
         .expect("a render without a deadline completes")
         .film
 }
 
 /// When a camera pass gives up: at `deadline`, keeping the sweeps (one sample per pixel each)
-/// already done, except that the first `required` sweeps always complete.
+/// already done, except that the first `required` sweeps always complete; and when it may go
+/// on past its samples per pixel (`spare`).
 #[derive(Clone, Copy, Debug)]
 pub struct Cut {
     /// When to stop starting rows.
     pub deadline: Option<Instant>,
     /// Sweeps that complete whatever the deadline (1 for a budget's first pass: it is the image).
     pub required: u32,
+    /// Time before the deadline that no other pass would use: sweeps beyond the pass's samples
+    /// per pixel may take it.
+    pub spare: Option<Spare>,
 }
+
+impl Cut {
+    /// No deadline: every sweep completes, and no more are added.
+    pub const NONE: Cut = Cut {
+        deadline: None,
+        required: 0,
+        spare: None,
+    };
+
+    /// Whether to add one more sweep after `extra` sweeps beyond the pass's samples per pixel,
+    /// the last of all taking `sweep`: while the time left to the deadline is less than
+    /// [`Spare::share`] of the pass so far (so too short for another pass, even a smaller last
+    /// one) and the sweep should end by the deadline with [`SPARE_SWEEP_MARGIN`] to spare.
+    fn spare_sweep(&self, extra: u32, sweep: Duration) -> bool {
+        let (Some(deadline), Some(spare)) = (self.deadline, self.spare) else {
+            return false;
+        };
+        let now = Instant::now();
+        let left = deadline.saturating_duration_since(now).as_secs_f64();
+        extra < spare.max
+            && left < spare.share * now.saturating_duration_since(spare.since).as_secs_f64()
+            && sweep.as_secs_f64() * SPARE_SWEEP_MARGIN <= left
+    }
+}
+
+/// Sweeps a camera pass adds beyond its samples per pixel at the end of a time budget
+/// ([`Cut::spare`]): the last pass's camera takes the time left that a smaller last pass would
+/// not have used, instead of ending early.
+#[derive(Clone, Copy, Debug)]
+pub struct Spare {
+    /// When the pass started (its photons included).
+    pub since: Instant,
+    /// Time left below this share of the pass's time is time no other pass would use.
+    pub share: f64,
+    /// Most sweeps added.
+    pub max: u32,
+}
+
+/// A spare sweep starts only if the last sweep's time, times this, is left before the deadline:
+/// a sweep still running at the deadline is lost.
+pub const SPARE_SWEEP_MARGIN: f64 = 1.1;
 
 /// A camera pass's film and the samples per pixel it holds.
 #[derive(Debug)]
 pub struct Swept {
     /// Each pixel's mean over `samples` samples.
     pub film: Film,
-    /// Sweeps completed (≤ the settings' spp).
+    /// Sweeps completed (more than the settings' spp only with [`Cut::spare`]).
     pub samples: u32,
 }
 
@@ -301,12 +342,16 @@ pub fn render_until(
     let (w, h) = (pass.settings.width, pass.settings.height);
     let mut film = Film::new(w, h);
     let mut sweep = vec![Rgb::ZERO; w as usize * h as usize];
-    let mut samples = 0;
-    for s in 0..pass.settings.spp.max(1) {
+    let spp = pass.settings.spp.max(1);
+    let (mut samples, mut took) = (0, Duration::ZERO);
+    while samples < spp || cut.spare_sweep(samples - spp, took) {
+        let s = samples;
         let deadline = cut.deadline.filter(|_| s >= cut.required);
+        let started = Instant::now();
         if !render_sweep(pass, progress, (deadline, edges), s, &mut sweep, &mut film.aov) {
             break;
         }
+        took = started.elapsed();
         for (c, v) in film.color.iter_mut().zip(&sweep) {
             *c += *v;
         }
@@ -400,7 +445,12 @@ fn camera_ray(camera: &Camera, settings: &RenderSettings, x: usize, y: usize, s:
     let (w, h) = (settings.width, settings.height);
     let spp = settings.spp.max(1) as u64;
     let pixel = pixel_index(settings, x, y);
-    let rng = Rng::keyed(settings.seed, stream::CAMERA, pixel * spp + s as u64);
+    let rng = if u64::from(s) < spp {
+        Rng::keyed(settings.seed, stream::CAMERA, pixel * spp + u64::from(s))
+    } else {
+        // A spare sweep ([`Cut::spare`]): `pixel * spp + s` is the next pixel's sample.
+        Rng::keyed(settings.seed, stream::SPARE_CAMERA, pixel << 32 | (u64::from(s) - spp))
+    };
     let scramble = sampling::pixel_scramble(settings.sequence_seed, stream::PIXEL, pixel);
     let index = settings.first_sample.wrapping_add(s);
     let film_pos = Vec2::new(x as f32, y as f32) + sampling::owen_sobol(index, scramble);

@@ -55,7 +55,8 @@ impl Accumulator {
     /// Render one more pass of `camera` with this pass's photons (`settings.seed` and
     /// `settings.pass` are the pass's), weighted by `weight` in the average (a smaller last pass
     /// of a time budget counts less). A pass cut at `cut`'s deadline keeps the samples per pixel
-    /// it completed, its weight scaled by their share; returns the samples per pixel added (0
+    /// it completed, its weight scaled by their share (spare sweeps, [`Cut::spare`], add none);
+    /// returns the samples per pixel added (0
     /// when the pass is given up; SPPM's passes update every sample in place and always
     /// complete).
     pub fn add_pass(&mut self, pass: CameraPass<'_>, progress: &(dyn Fn(usize) + Sync), cut: Cut, weight: f32) -> u32 {
@@ -78,7 +79,9 @@ impl Accumulator {
                 let Some(swept) = render_until(pass, progress, cut, edges.as_ref()) else {
                     return 0;
                 };
-                let weight = weight * swept.samples as f32 / spp as f32;
+                // Spare sweeps beyond the pass's samples lower its pixels' noise but not its
+                // photons': its weight stays that of the pass.
+                let weight = weight * swept.samples.min(spp) as f32 / spp as f32;
                 for (s, c) in sum.iter_mut().zip(&swept.film.color) {
                     *s += *c * weight;
                 }
