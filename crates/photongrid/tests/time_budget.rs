@@ -138,127 +138,121 @@ fn a_budget_already_spent_still_gives_one_complete_pass_and_no_more() {
     assert_eq!(film.nonfinite(), 0);
 }
 
-#[test]
-fn a_camera_pass_past_its_deadline_keeps_its_required_sweeps_only() {
+/// Call `f` with a 32×24 camera pass of `spp` samples and 2 gather rays on the small sample's
+/// photons (pass 0).
+fn with_small_pass(spp: u32, f: impl FnOnce(photongrid::render::CameraPass<'_>)) {
     use photongrid::estimate::Estimator;
-    use photongrid::render::{render, render_until, CameraPass, Cut, PhotonData};
+    use photongrid::render::{CameraPass, PhotonData};
     let (scene, settings, prepared) = prepared_small();
     let surfaces = photongrid::estimate::Surfaces::new(&scene, &prepared.accel, &settings);
-    let input = PhotonData {
-        estimator: Estimator::for_pass(&settings, 0, &prepared.map, prepared.grids.view(), &surfaces),
-        irradiance: prepared.irradiance.as_ref(),
-    };
-    let rs = render_settings(&settings, 3, 2);
-    let camera = &scene.cameras[0];
-    let past = Some(Instant::now() - Duration::from_millis(1));
-    let pass = CameraPass {
+    let rs = render_settings(&settings, spp, 2);
+    f(CameraPass {
         scene: &scene,
         accel: &prepared.accel,
-        photons: input,
-        camera,
+        photons: PhotonData {
+            estimator: Estimator::for_pass(&settings, 0, &prepared.map, prepared.grids.view(), &surfaces),
+            irradiance: prepared.irradiance.as_ref(),
+        },
+        camera: &scene.cameras[0],
         settings: &rs,
         gathering_points: None,
-    };
-    let cut = |deadline, required| Cut {
-        deadline,
-        required,
-        spare: None,
-    };
-    assert!(
-        render_until(pass, &|_| {}, cut(past, 0), None).is_none(),
-        "nothing required: dropped"
-    );
-    let first = render_until(pass, &|_| {}, cut(past, 1), None).expect("the first sweep is required");
-    assert_eq!(first.samples, 1);
-    assert!(first.film.mean()[1] > 0.0);
-    let later = Some(Instant::now() + Duration::from_secs(3600));
-    let whole = render_until(pass, &|_| {}, cut(later, 1), None).expect("in time");
-    assert_eq!(whole.samples, 3);
-    // Sweeps add up to the same image as a pass without a deadline, and one sweep differs.
-    let plain = render(pass, &|_| {});
-    assert_eq!(whole.film.color, plain.color);
-    assert_ne!(first.film.color, plain.color);
+    });
+}
+
+#[test]
+fn a_camera_pass_past_its_deadline_keeps_its_required_sweeps_only() {
+    use photongrid::render::{render, render_until, Cut};
+    with_small_pass(3, |pass| {
+        let past = Some(Instant::now() - Duration::from_millis(1));
+        let cut = |deadline, required| Cut {
+            deadline,
+            required,
+            spare: None,
+        };
+        assert!(
+            render_until(pass, &|_| {}, cut(past, 0), None).is_none(),
+            "nothing required: dropped"
+        );
+        let first = render_until(pass, &|_| {}, cut(past, 1), None).expect("the first sweep is required");
+        assert_eq!(first.samples, 1);
+        assert!(first.film.mean()[1] > 0.0);
+        let later = Some(Instant::now() + Duration::from_secs(3600));
+        let whole = render_until(pass, &|_| {}, cut(later, 1), None).expect("in time");
+        assert_eq!(whole.samples, 3);
+        // Sweeps add up to the same image as a pass without a deadline, and one sweep differs.
+        let plain = render(pass, &|_| {});
+        assert_eq!(whole.film.color, plain.color);
+        assert_ne!(first.film.color, plain.color);
+    });
 }
 
 #[test]
 fn spare_sweeps_take_only_time_no_other_pass_would_use_and_keep_the_pass_weight() {
-    use photongrid::estimate::{Accumulation, Estimator};
+    use photongrid::estimate::Accumulation;
     use photongrid::render::progressive::Accumulator;
-    use photongrid::render::{render_until, CameraPass, Cut, PhotonData, Spare};
-    let (scene, settings, prepared) = prepared_small();
-    let surfaces = photongrid::estimate::Surfaces::new(&scene, &prepared.accel, &settings);
-    let input = PhotonData {
-        estimator: Estimator::for_pass(&settings, 0, &prepared.map, prepared.grids.view(), &surfaces),
-        irradiance: prepared.irradiance.as_ref(),
-    };
-    let two = render_settings(&settings, 2, 2);
-    let pass = CameraPass {
-        scene: &scene,
-        accel: &prepared.accel,
-        photons: input,
-        camera: &scene.cameras[0],
-        settings: &two,
-        gathering_points: None,
-    };
-    let hour = Duration::from_secs(3600);
-    let cut = |since: Instant| Cut {
-        deadline: Some(Instant::now() + hour),
-        required: 1,
-        spare: Some(Spare {
-            since,
-            share: 1.0,
-            max: 3,
-        }),
-    };
-    // An hour left after a pass that began just now: another pass fits, no spare sweep.
-    let planned = render_until(pass, &|_| {}, cut(Instant::now()), None).unwrap();
-    assert_eq!(planned.samples, 2);
-    // The pass began two hours ago: the hour left is too short for another such pass, so the
-    // pass goes on, up to `max` more sweeps.
-    let long_ago = Instant::now() - 2 * hour;
-    let spared = render_until(pass, &|_| {}, cut(long_ago), None).unwrap();
-    assert_eq!(spared.samples, 5);
-    assert_eq!(spared.film.nonfinite(), 0);
-    assert_ne!(spared.film.color, planned.film.color);
-    let (a, b) = (spared.film.mean(), planned.film.mean());
-    assert!((a[1] / b[1] - 1.0).abs() < 0.1, "{a:?} vs {b:?}");
-    // In the average of passes a pass with spare sweeps weighs what its planned samples do.
-    let average = |second: Cut| {
-        let mut acc = Accumulator::new(Accumulation::Average, 32, 24, 2);
-        assert_eq!(acc.add_pass(pass, &|_| {}, Cut::NONE, 1.0), 2);
-        let next = CameraPass {
-            settings: &photongrid::render::RenderSettings {
-                first_sample: 2,
-                ..two.clone()
-            },
-            ..pass
+    use photongrid::render::{render_until, CameraPass, Cut, Spare};
+    with_small_pass(2, |pass| {
+        let two = pass.settings.clone();
+        let hour = Duration::from_secs(3600);
+        let cut = |since: Instant| Cut {
+            deadline: Some(Instant::now() + hour),
+            required: 1,
+            spare: Some(Spare {
+                since,
+                share: 1.0,
+                max: 3,
+            }),
         };
-        let added = acc.add_pass(next, &|_| {}, second, 1.0);
-        (acc.film(), added)
-    };
-    let (with_spare, added) = average(cut(long_ago));
-    assert_eq!(added, 5);
-    let second = render_until(
-        CameraPass {
-            settings: &photongrid::render::RenderSettings {
-                first_sample: 2,
-                ..two.clone()
+        // An hour left after a pass that began just now: another pass fits, no spare sweep.
+        let planned = render_until(pass, &|_| {}, cut(Instant::now()), None).unwrap();
+        assert_eq!(planned.samples, 2);
+        // The pass began two hours ago: the hour left is too short for another such pass, so the
+        // pass goes on, up to `max` more sweeps.
+        let long_ago = Instant::now() - 2 * hour;
+        let spared = render_until(pass, &|_| {}, cut(long_ago), None).unwrap();
+        assert_eq!(spared.samples, 5);
+        assert_eq!(spared.film.nonfinite(), 0);
+        assert_ne!(spared.film.color, planned.film.color);
+        let (a, b) = (spared.film.mean(), planned.film.mean());
+        assert!((a[1] / b[1] - 1.0).abs() < 0.1, "{a:?} vs {b:?}");
+        // In the average of passes a pass with spare sweeps weighs what its planned samples do.
+        let average = |second: Cut| {
+            let mut acc = Accumulator::new(Accumulation::Average, 32, 24, 2);
+            assert_eq!(acc.add_pass(pass, &|_| {}, Cut::NONE, 1.0), 2);
+            let next = CameraPass {
+                settings: &photongrid::render::RenderSettings {
+                    first_sample: 2,
+                    ..two.clone()
+                },
+                ..pass
+            };
+            let added = acc.add_pass(next, &|_| {}, second, 1.0);
+            (acc.film(), added)
+        };
+        let (with_spare, added) = average(cut(long_ago));
+        assert_eq!(added, 5);
+        let second = render_until(
+            CameraPass {
+                settings: &photongrid::render::RenderSettings {
+                    first_sample: 2,
+                    ..two.clone()
+                },
+                ..pass
             },
-            ..pass
-        },
-        &|_| {},
-        cut(long_ago),
-        None,
-    )
-    .unwrap();
-    assert_eq!(second.samples, 5);
-    for ((got, a), b) in with_spare.color.iter().zip(&planned.film.color).zip(&second.film.color) {
-        let want = (*a + *b) * 0.5;
-        assert!(
-            (*got - want).abs().max_element() <= 1e-5 * want.max_element().max(1.0),
-            "{got:?} vs {want:?}"
-        );
-    }
+            &|_| {},
+            cut(long_ago),
+            None,
+        )
+        .unwrap();
+        assert_eq!(second.samples, 5);
+        for ((got, a), b) in with_spare.color.iter().zip(&planned.film.color).zip(&second.film.color) {
+            let want = (*a + *b) * 0.5;
+            assert!(
+                (*got - want).abs().max_element() <= 1e-5 * want.max_element().max(1.0),
+                "{got:?} vs {want:?}"
+            );
+        }
+    });
 }
 
 #[test]
