@@ -557,7 +557,6 @@ impl<'a> PassLoop<'a> {
         // sample per pixel made the image worse on some scenes (docs/time_budget.md).
         let spare = (done > 0 && settings.passes.is_none()).then_some(Spare {
             since: started,
-            share: 1.0,
             max: settings.spp.max(1),
         });
         let last = self.cameras.len().saturating_sub(1);

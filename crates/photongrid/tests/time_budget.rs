@@ -197,11 +197,7 @@ fn spare_sweeps_take_only_time_no_other_pass_would_use_and_keep_the_pass_weight(
         let cut = |since: Instant| Cut {
             deadline: Some(Instant::now() + hour),
             required: 1,
-            spare: Some(Spare {
-                since,
-                share: 1.0,
-                max: 3,
-            }),
+            spare: Some(Spare { since, max: 3 }),
         };
         // An hour left after a pass that began just now: another pass fits, no spare sweep.
         let planned = render_until(pass, &|_| {}, cut(Instant::now()), None).unwrap();

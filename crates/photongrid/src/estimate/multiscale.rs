@@ -494,8 +494,8 @@ impl MultiscaleGrids {
     /// curvature read from the 3×3 blocks of full texels one level coarser around the point,
     /// blended ([`blended_hessian`]; their means hold four times the photons of the kernel's
     /// texels, so the correction adds little noise), else at the kernel's level (near an edge,
-    /// where a coarser block does not fit). Caustics are left as they are: their curvature is that of filaments
-    /// and outlines, which no block resolves.
+    /// where a coarser block does not fit). Caustics are left as they are: their curvature is
+    /// that of filaments and outlines, which no block resolves.
     fn curvature_corrected(&self, t: &LayerTexture, layer: usize, p: Vec3, e: LayerEstimate) -> LayerEstimate {
         if layer == CAUSTIC {
             return e;

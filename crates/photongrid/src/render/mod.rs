@@ -288,30 +288,28 @@ impl Cut {
     };
 
     /// Whether to add one more sweep after `extra` sweeps beyond the pass's samples per pixel,
-    /// the last of all taking `sweep`: while the time left to the deadline is less than
-    /// [`Spare::share`] of the pass so far (so too short for another pass, even a smaller last
-    /// one) and the sweep should end by the deadline with [`SPARE_SWEEP_MARGIN`] to spare.
+    /// the last of all taking `sweep`: while the time left to the deadline is less than the
+    /// pass has taken so far (too short for another pass of its size) and the sweep should end
+    /// by the deadline with [`SPARE_SWEEP_MARGIN`] to spare.
     fn spare_sweep(&self, extra: u32, sweep: Duration) -> bool {
         let (Some(deadline), Some(spare)) = (self.deadline, self.spare) else {
             return false;
         };
         let now = Instant::now();
-        let left = deadline.saturating_duration_since(now).as_secs_f64();
+        let left = deadline.saturating_duration_since(now);
         extra < spare.max
-            && left < spare.share * now.saturating_duration_since(spare.since).as_secs_f64()
-            && sweep.as_secs_f64() * SPARE_SWEEP_MARGIN <= left
+            && left < now.saturating_duration_since(spare.since)
+            && sweep.mul_f64(SPARE_SWEEP_MARGIN) <= left
     }
 }
 
 /// Sweeps a camera pass adds beyond its samples per pixel at the end of a time budget
-/// ([`Cut::spare`]): the last pass's camera takes the time left that a smaller last pass would
-/// not have used, instead of ending early.
+/// ([`Cut::spare`]): the last pass's camera takes the time left that no further pass of its
+/// size would use, instead of ending early.
 #[derive(Clone, Copy, Debug)]
 pub struct Spare {
     /// When the pass started (its photons included).
     pub since: Instant,
-    /// Time left below this share of the pass's time is time no other pass would use.
-    pub share: f64,
     /// Most sweeps added.
     pub max: u32,
 }

@@ -56,9 +56,8 @@ impl Accumulator {
     /// `settings.pass` are the pass's), weighted by `weight` in the average (a smaller last pass
     /// of a time budget counts less). A pass cut at `cut`'s deadline keeps the samples per pixel
     /// it completed, its weight scaled by their share (spare sweeps, [`Cut::spare`], add none);
-    /// returns the samples per pixel added (0
-    /// when the pass is given up; SPPM's passes update every sample in place and always
-    /// complete).
+    /// returns the samples per pixel added (0 when the pass is given up; SPPM's passes update
+    /// every sample in place and always complete).
     pub fn add_pass(&mut self, pass: CameraPass<'_>, progress: &(dyn Fn(usize) + Sync), cut: Cut, weight: f32) -> u32 {
         let spp = pass.settings.spp.max(1);
         match self {
