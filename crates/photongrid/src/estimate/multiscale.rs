@@ -102,12 +102,7 @@ pub fn curvature_bias(kernel: &Texel, h: [f32; 3]) -> f32 {
 /// average, which adds the same constant to every texel of a quadratic: the differences see
 /// the light's own curvature.
 pub fn block_hessian(block: &[[&Texel; 3]; 3], side: f32) -> [f32; 3] {
-    means_hessian(block.map(|row| row.map(texel_mean)), side)
-}
-
-/// A texel's mean irradiance (luminance).
-fn texel_mean(t: &Texel) -> f32 {
-    luminance(t.flux) / t.area
+    means_hessian(block.map(|row| row.map(Texel::mean)), side)
 }
 
 /// [`block_hessian`] of a 3×3 block's means (rows along y).

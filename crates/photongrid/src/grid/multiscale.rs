@@ -59,6 +59,11 @@ impl Default for Texel {
 }
 
 impl Texel {
+    /// Its mean irradiance (luminance): flux over the surface inside.
+    pub fn mean(&self) -> f32 {
+        luminance(Rgb::from(self.flux)) / self.area
+    }
+
     fn add(&mut self, o: &Texel, w: f32) {
         if w > 0.0 {
             self.clearance = self.clearance.min(o.clearance);
@@ -728,13 +733,7 @@ impl LayerTexture {
                 lv.means = lv
                     .texels
                     .iter()
-                    .map(|t| {
-                        if t.area >= full {
-                            luminance(Rgb::from(t.flux)) / t.area
-                        } else {
-                            f32::NAN
-                        }
-                    })
+                    .map(|t| if t.area >= full { t.mean() } else { f32::NAN })
                     .collect();
             }
         }
