@@ -98,7 +98,20 @@ pub struct Accel {
     /// Per scene triangle: a glass face and another surface resting against each other
     /// ([`Leaving`]). Empty when built without materials.
     contact: Vec<bool>,
+    /// Per entry of `tris`: a surface a glass face rests against, found [`BEHIND_GLASS`]
+    /// farther than it is. Empty when built without materials.
+    under_glass: Vec<bool>,
 }
+
+/// How much farther, in the BVH's units, traversal finds a surface a glass face rests against
+/// (a table's top under a glass's base) than it is, its true distance then given back: light
+/// coming down through the glass meets the glass's base and the table's top at the same
+/// distance, and the base must be crossed first (refracted, or reflected by Fresnel). Found
+/// first, the table took the light out of the glass as if the two were one optical medium, and
+/// the light it reflected went up through the glass unrefracted (shelf_objects: the shadowed
+/// wall above a glass cylinder 2.4 % too bright, docs/materials.md). As wide as the window in
+/// which [`Accel::intersect_from`] passes over the face a ray leaves.
+const BEHIND_GLASS: f32 = 2.0 * CONTACT_LEAD;
 
 /// The triangles with alpha, tested inside traversal: a hit where a MASK material's alpha is
 /// below its cutoff, or a BLEND material's stochastic coverage says no, is not a hit — for
@@ -278,6 +291,7 @@ impl Accel {
             coverage: None,
             material: Vec::new(),
             contact: Vec::new(),
+            under_glass: Vec::new(),
         }
     }
 
@@ -290,7 +304,16 @@ impl Accel {
             .map(|&i| scene.triangles[i as usize].material)
             .collect();
         let contact = contact_faces(scene, &accel);
+        let under_glass = accel
+            .original
+            .iter()
+            .map(|&i| {
+                let t = &scene.triangles[i as usize];
+                contact[i as usize] && !scene.materials[t.material as usize].transmits()
+            })
+            .collect();
         Accel {
+            under_glass,
             coverage: Coverage::of(scene),
             material,
             contact,
@@ -303,7 +326,7 @@ impl Accel {
     #[inline]
     fn test(&self, r: &Ray, id: usize) -> f32 {
         let t = self.tris[id].intersect(r);
-        match &self.coverage {
+        let t = match &self.coverage {
             Some(c) if t < f32::INFINITY => {
                 let p = Vec3::from(r.origin + r.direction * t) / self.scale;
                 if c.covers(self.original[id], p, r) {
@@ -313,6 +336,18 @@ impl Accel {
                 }
             }
             _ => t,
+        };
+        t + self.behind(id)
+    }
+
+    /// How much farther traversal finds entry `id` of `tris` than it is: [`BEHIND_GLASS`] for
+    /// a surface a glass face rests against, else nothing.
+    #[inline]
+    fn behind(&self, id: usize) -> f32 {
+        if self.under_glass.get(id).copied().unwrap_or(false) {
+            BEHIND_GLASS
+        } else {
+            0.0
         }
     }
 
@@ -326,9 +361,12 @@ impl Accel {
     #[inline]
     fn closest(&self, ray: Ray, test: impl FnMut(&Ray, usize) -> f32) -> Option<Hit> {
         let mut hit = RayHit::none();
-        self.bvh.ray_traverse(ray, &mut hit, test).then(|| Hit {
-            t: hit.t / self.scale,
-            triangle: self.original[hit.primitive_id as usize],
+        self.bvh.ray_traverse(ray, &mut hit, test).then(|| {
+            let id = hit.primitive_id as usize;
+            Hit {
+                t: (hit.t - self.behind(id)).max(0.0) / self.scale,
+                triangle: self.original[id],
+            }
         })
     }
 
@@ -343,7 +381,7 @@ impl Accel {
         let ray = self.ray(l.at - dir * lead, dir, tmax + lead);
         let test = |r: &Ray, id: usize| {
             let t = self.test(r, id);
-            if t < 2.0 * CONTACT_LEAD && self.material[id] == l.material {
+            if t - self.behind(id) < 2.0 * CONTACT_LEAD && self.material[id] == l.material {
                 f32::INFINITY
             } else {
                 t
@@ -398,6 +436,7 @@ impl Accel {
             + self.original.len() * 8
             + self.material.len() * 4
             + self.contact.len()
+            + self.under_glass.len()
     }
 }
 
