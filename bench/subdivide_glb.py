@@ -9,45 +9,15 @@ Handles indexed and non-indexed TRIANGLES primitives with POSITION, NORMAL, TEXC
 TANGENT (interpolated; normals renormalised); other attributes are dropped. Buffer views of
 images are copied. Needs numpy.
 """
-import json
-import struct
+import os
 import sys
 
 import numpy as np
 
-COMPONENT = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
-WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tools"))
+from glb import accessor, read_glb, write_glb  # noqa: E402
+
 KEPT = ("POSITION", "NORMAL", "TANGENT")
-
-
-def read_glb(path):
-    data = open(path, "rb").read()
-    magic, _, _ = struct.unpack_from("<III", data, 0)
-    if magic != 0x46546C67:
-        sys.exit(f"{path}: not a GLB file")
-    offset, doc, binary = 12, None, b""
-    while offset < len(data):
-        length, kind = struct.unpack_from("<II", data, offset)
-        chunk = data[offset + 8 : offset + 8 + length]
-        if kind == 0x4E4F534A:
-            doc = json.loads(chunk)
-        elif kind == 0x004E4942:
-            binary = chunk
-        offset += 8 + length
-    return doc, binary
-
-
-def accessor(doc, binary, index):
-    a = doc["accessors"][index]
-    view = doc["bufferViews"][a["bufferView"]]
-    dtype = np.dtype(COMPONENT[a["componentType"]])
-    width = WIDTH[a["type"]]
-    start = view.get("byteOffset", 0) + a.get("byteOffset", 0)
-    stride = view.get("byteStride", 0) or dtype.itemsize * width
-    count = a["count"]
-    raw = np.frombuffer(binary, dtype=np.uint8, count=stride * (count - 1) + dtype.itemsize * width, offset=start)
-    rows = np.lib.stride_tricks.as_strided(raw, shape=(count, dtype.itemsize * width), strides=(stride, 1))
-    return np.ascontiguousarray(rows).view(dtype).reshape(count, width)
 
 
 def subdivide(tris, attrs):
@@ -132,15 +102,7 @@ def main():
             prim.pop("targets", None)
     doc["accessors"], doc["bufferViews"] = accessors, views
     doc["buffers"] = [{"byteLength": len(out)}]
-    while len(out) % 4:
-        out.append(0)
-    text = json.dumps(doc, separators=(",", ":")).encode()
-    text += b" " * (-len(text) % 4)
-    total = 12 + 8 + len(text) + 8 + len(out)
-    with open(dst, "wb") as f:
-        f.write(struct.pack("<III", 0x46546C67, 2, total))
-        f.write(struct.pack("<II", len(text), 0x4E4F534A) + text)
-        f.write(struct.pack("<II", len(out), 0x004E4942) + bytes(out))
+    write_glb(dst, doc, out)
     print(f"{dst}: {triangles} triangles")
 
 

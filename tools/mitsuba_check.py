@@ -13,54 +13,25 @@ glass or in a mirror: those pixels are black, as the references' specular masks 
 
 Handles what the public scenes use: a flat node list (no children), triangle meshes with
 normals, Lambert (KHR_materials_specular 0), smooth glass (KHR_materials_transmission, IOR
-1.5), smooth metal (Schlick, as the reference's principled BSDF), point and directional
-lights (radiometric = photometric / 683, UNITS.md), perspective cameras, box filter, path
-length at most `--max-depth` segments (12, as the references). Anything else is refused.
+1.5), smooth metal (Mitsuba's principled BSDF: Schlick's Fresnel on the base colour, as
+glTF's), point and directional lights (radiometric = photometric / 683, UNITS.md),
+perspective cameras, box filter, path length at most `--max-depth` segments (12, as the
+references). Anything else is refused.
 
 Needs `pip install mitsuba==3.9.1` (its scalar_rgb variant: the LLVM variants need a newer
 libLLVM than this machine's 15).
 """
 
 import argparse
-import json
 import os
-import struct
 import sys
 import tempfile
 import time
 
 import numpy as np
 
-COMPONENT = {5126: np.float32, 5125: np.uint32, 5123: np.uint16, 5121: np.uint8}
-WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
-
-
-def read_glb(path):
-    b = open(path, "rb").read()
-    if b[:4] != b"glTF":
-        sys.exit(f"{path}: not a .glb")
-    n = struct.unpack("<I", b[12:16])[0]
-    j = json.loads(b[20 : 20 + n])
-    rest = b[20 + n :]
-    return j, rest[8 : 8 + struct.unpack("<I", rest[:4])[0]], rest
-
-
-def write_glb(path, j, rest):
-    js = json.dumps(j).encode()
-    js += b" " * ((4 - len(js) % 4) % 4)
-    head = struct.pack("<III", 0x46546C67, 2, 20 + len(js) + len(rest)) + struct.pack("<II", len(js), 0x4E4F534A)
-    with open(path, "wb") as f:
-        f.write(head + js + rest)
-
-
-def accessor(j, binary, i):
-    a = j["accessors"][i]
-    v = j["bufferViews"][a["bufferView"]]
-    dtype, width = COMPONENT[a["componentType"]], WIDTH[a["type"]]
-    if v.get("byteStride", 0) not in (0, width * np.dtype(dtype).itemsize):
-        sys.exit(f"accessor {i}: interleaved buffer views are not handled")
-    start = v.get("byteOffset", 0) + a.get("byteOffset", 0)
-    return np.frombuffer(binary, dtype, a["count"] * width, start).reshape(a["count"], width)
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from glb import accessor, read_glb, write_glb  # noqa: E402
 
 
 def node_matrix(nd):
@@ -99,13 +70,17 @@ def bsdf(j, index):
     pbr = m.get("pbrMetallicRoughness", {})
     ext = m.get("extensions", {})
     name = m.get("name", index)
-    if "baseColorTexture" in pbr or "emissiveFactor" in m or pbr.get("roughnessFactor", 1.0) not in (0.0, 1.0):
-        sys.exit(f"material {name}: textures, emission and rough surfaces are not handled")
+    if "baseColorTexture" in pbr or any(m.get("emissiveFactor", [0, 0, 0])):
+        sys.exit(f"material {name}: textures and emission are not handled")
     base = pbr.get("baseColorFactor", [1, 1, 1, 1])[:3]
-    if ext.get("KHR_materials_transmission", {}).get("transmissionFactor", 0) > 0:
+    glass = ext.get("KHR_materials_transmission", {}).get("transmissionFactor", 0) > 0
+    metal = pbr.get("metallicFactor", 1.0) > 0.5
+    if (glass or metal) and pbr.get("roughnessFactor", 1.0) != 0:
+        sys.exit(f"material {name}: rough glass and metal are not handled")
+    if glass:
         ior = ext.get("KHR_materials_ior", {}).get("ior", 1.5)
         return {"type": "dielectric", "int_ior": ior, "ext_ior": 1.0}
-    if pbr.get("metallicFactor", 1.0) > 0.5:
+    if metal:
         return {"type": "principled", "base_color": {"type": "rgb", "value": base}, "metallic": 1.0, "roughness": 0.0}
     if ext.get("KHR_materials_specular", {}).get("specularFactor", 1.0) != 0:
         sys.exit(f"material {name}: only Lambert (specularFactor 0), glass and metal are handled")
@@ -188,12 +163,11 @@ def main():
     import mitsuba as mi
 
     mi.set_variant(os.environ.get("MI_VARIANT", "scalar_rgb"))
-    mi.set_log_level(mi.LogLevel.Warn)  # no progress bar
-    j, binary, rest = read_glb(a.glb)
+    j, binary = read_glb(a.glb)
     names, _, dy = a.lift.rpartition(":")
     edit(j, [s for s in a.drop.split(",") if s], ([s for s in names.split(",") if s], float(dy or 0)))
     if a.write_glb:
-        write_glb(a.write_glb, j, rest)
+        write_glb(a.write_glb, j, binary)
     with tempfile.TemporaryDirectory() as work:
         d = scene_dict(j, binary, a.camera, a.spp, a.max_depth, work)
         d["sensor"]["to_world"] = mi.ScalarTransform4f(d["sensor"]["to_world"].tolist())

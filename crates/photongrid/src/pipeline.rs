@@ -220,7 +220,7 @@ impl GridReport {
                 m.textures.len(),
                 m.memory_bytes() as f64 / 1e6,
                 if m.stratified {
-                    "every light is a point, spot or sun: direct and caustic photons land from stratified points (--stratified-ici-threshold)"
+                    "every light is a point, spot or sun: direct and caustic photons land from stratified points (--stratified-ici-threshold, --stratified-caustic-ici-threshold)"
                 } else {
                     "a light has area: direct and caustic photons land about as unevenly as independent ones (--ici-threshold, --caustic-ici-threshold)"
                 }

@@ -97,13 +97,17 @@ pub struct Settings {
     /// sharper, at some grain; the same 8-photon rule).
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", default_value_t = Settings::default().caustic_ici_threshold))]
     pub caustic_ici_threshold: f32,
-    /// Multiscale estimate: the same for direct and caustic photons where every light is a
-    /// point, spot or sun. Their photons are emitted from stratified points and land far
-    /// more evenly than the Poisson counts the intervals are measured in, so the interval
-    /// is narrower (an emitting surface's photons take four numbers each and land nearly
-    /// as unevenly as independent ones).
+    /// Multiscale estimate: the same for direct photons where every light is a point, spot or
+    /// sun. Their photons are emitted from stratified points and land far more evenly than
+    /// the Poisson counts the intervals are measured in, so the interval is narrower (an
+    /// emitting surface's photons take four numbers each and land nearly as unevenly as
+    /// independent ones).
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", default_value_t = Settings::default().stratified_ici_threshold))]
     pub stratified_ici_threshold: f32,
+    /// Multiscale estimate: the same for caustic photons where every light is a point, spot
+    /// or sun (lower: caustic bands keep sharper edges, at some grain).
+    #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", default_value_t = Settings::default().stratified_caustic_ici_threshold))]
+    pub stratified_caustic_ici_threshold: f32,
     /// Multiscale estimate: photons per finest cell where a plane's photons are densest.
     #[cfg_attr(feature = "cli", arg(long, help_heading = "Grids", default_value_t = Settings::default().cell_photons))]
     pub cell_photons: f32,
@@ -283,6 +287,7 @@ impl Default for Settings {
             ici_threshold: 2.0,
             caustic_ici_threshold: 1.0,
             stratified_ici_threshold: 0.5,
+            stratified_caustic_ici_threshold: 0.35,
             cell_photons: 2.0,
             grid_cells: 4 << 20,
             light_samples: 4,
@@ -377,6 +382,9 @@ impl Settings {
         }
         if !(self.stratified_ici_threshold > 0.0 && self.stratified_ici_threshold.is_finite()) {
             return Err(e("stratified_ici_threshold", "must be a positive number"));
+        }
+        if !(self.stratified_caustic_ici_threshold > 0.0 && self.stratified_caustic_ici_threshold.is_finite()) {
+            return Err(e("stratified_caustic_ici_threshold", "must be a positive number"));
         }
         if !(self.cell_photons > 0.0 && self.cell_photons.is_finite()) {
             return Err(e("cell_photons", "must be a positive number"));

@@ -281,7 +281,10 @@ impl Gammas {
     /// stratified points or not ([`MultiscaleGrids::stratified`]).
     pub fn of_settings(settings: &crate::Settings, stratified: bool) -> Self {
         let (direct, caustic) = if stratified {
-            (settings.stratified_ici_threshold, settings.stratified_ici_threshold)
+            (
+                settings.stratified_ici_threshold,
+                settings.stratified_caustic_ici_threshold,
+            )
         } else {
             (settings.ici_threshold, settings.caustic_ici_threshold)
         };
@@ -824,10 +827,11 @@ mod tests {
             ici_threshold: 2.0,
             caustic_ici_threshold: 1.0,
             stratified_ici_threshold: 0.25,
+            stratified_caustic_ici_threshold: 0.125,
             ..Default::default()
         };
         let widths = |g: Gammas| [CAUSTIC, INDIRECT, DIRECT, TAIL].map(|l| g.of(l));
-        assert_eq!(widths(Gammas::of_settings(&s, true)), [0.25, 2.0, 0.25, 2.0]);
+        assert_eq!(widths(Gammas::of_settings(&s, true)), [0.125, 2.0, 0.25, 2.0]);
         assert_eq!(widths(Gammas::of_settings(&s, false)), [1.0, 2.0, 2.0, 2.0]);
     }
 
