@@ -34,6 +34,10 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from glb import accessor, read_glb, write_glb  # noqa: E402
 
 
+class Unsupported(Exception):
+    """Something in the scene this check does not render; main names the file."""
+
+
 def node_matrix(nd):
     if "matrix" in nd:
         return np.array(nd["matrix"], float).reshape(4, 4).T
@@ -62,7 +66,8 @@ def edit(j, drop, lift):
             if "matrix" in nd:
                 nd["matrix"][13] += dy
             else:
-                nd["translation"] = [a + b for a, b in zip(nd.get("translation", [0, 0, 0]), [0, dy, 0])]
+                nd["translation"] = list(nd.get("translation", [0, 0, 0]))
+                nd["translation"][1] += dy
 
 
 def bsdf(j, index):
@@ -71,19 +76,19 @@ def bsdf(j, index):
     ext = m.get("extensions", {})
     name = m.get("name", index)
     if "baseColorTexture" in pbr or any(m.get("emissiveFactor", [0, 0, 0])):
-        sys.exit(f"material {name}: textures and emission are not handled")
+        raise Unsupported(f"material {name}: textures and emission are not handled")
     base = pbr.get("baseColorFactor", [1, 1, 1, 1])[:3]
     glass = ext.get("KHR_materials_transmission", {}).get("transmissionFactor", 0) > 0
     metal = pbr.get("metallicFactor", 1.0) > 0.5
     if (glass or metal) and pbr.get("roughnessFactor", 1.0) != 0:
-        sys.exit(f"material {name}: rough glass and metal are not handled")
+        raise Unsupported(f"material {name}: rough glass and metal are not handled")
     if glass:
         ior = ext.get("KHR_materials_ior", {}).get("ior", 1.5)
         return {"type": "dielectric", "int_ior": ior, "ext_ior": 1.0}
     if metal:
         return {"type": "principled", "base_color": {"type": "rgb", "value": base}, "metallic": 1.0, "roughness": 0.0}
     if ext.get("KHR_materials_specular", {}).get("specularFactor", 1.0) != 0:
-        sys.exit(f"material {name}: only Lambert (specularFactor 0), glass and metal are handled")
+        raise Unsupported(f"material {name}: only Lambert (specularFactor 0), glass and metal are handled")
     return {"type": "diffuse", "reflectance": {"type": "rgb", "value": base}}
 
 
@@ -109,12 +114,12 @@ def scene_dict(j, binary, camera, spp, max_depth, workdir):
         nd = j["nodes"][k]
         name = nd.get("name", f"node{k}")
         if nd.get("children"):
-            sys.exit(f"node {name}: node hierarchies are not handled (flat node lists only)")
+            raise Unsupported(f"node {name}: node hierarchies are not handled (flat node lists only)")
         m = node_matrix(nd)
         if "mesh" in nd:
             for pi, prim in enumerate(j["meshes"][nd["mesh"]]["primitives"]):
                 if prim.get("mode", 4) != 4 or "NORMAL" not in prim["attributes"]:
-                    sys.exit(f"node {name}: only triangle meshes with normals are handled")
+                    raise Unsupported(f"node {name}: only triangle meshes with normals are handled")
                 p = accessor(j, binary, prim["attributes"]["POSITION"]).astype(float) @ m[:3, :3].T + m[:3, 3]
                 n = accessor(j, binary, prim["attributes"]["NORMAL"]).astype(float) @ np.linalg.inv(m[:3, :3])
                 n /= np.linalg.norm(n, axis=1, keepdims=True)
@@ -142,9 +147,9 @@ def scene_dict(j, binary, camera, spp, max_depth, workdir):
                 forward = -m[:3, 2] / np.linalg.norm(m[:3, 2])
                 d[name] = {"type": "directional", "direction": forward.tolist(), "irradiance": power}
             else:
-                sys.exit(f"light {name}: {light['type']} lights are not handled (point and directional only)")
+                raise Unsupported(f"light {name}: {light['type']} lights are not handled (point and directional only)")
     if "sensor" not in d:
-        sys.exit(f"no camera {camera} among the scene's nodes")
+        raise Unsupported(f"no camera {camera} among the scene's nodes")
     return d
 
 
@@ -169,7 +174,10 @@ def main():
     if a.write_glb:
         write_glb(a.write_glb, j, binary)
     with tempfile.TemporaryDirectory() as work:
-        d = scene_dict(j, binary, a.camera, a.spp, a.max_depth, work)
+        try:
+            d = scene_dict(j, binary, a.camera, a.spp, a.max_depth, work)
+        except Unsupported as e:
+            sys.exit(f"{a.glb}: {e}")
         d["sensor"]["to_world"] = mi.ScalarTransform4f(d["sensor"]["to_world"].tolist())
         t = time.time()
         image = mi.render(mi.load_dict(d), seed=a.seed)
