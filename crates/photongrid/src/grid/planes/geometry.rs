@@ -154,8 +154,13 @@ impl Plane {
     /// borders (the weights of repeated indices add up). Non-finite input maps
     /// to the corner cell.
     pub fn bilinear(&self, p: Vec3) -> [(usize, f32); 4] {
-        let (ru, rv) = (self.res_u.max(1), self.res_v.max(1));
         let (gx, gy) = self.grid_coords(p);
+        self.bilinear_at(gx, gy)
+    }
+
+    /// [`Plane::bilinear`] at fine grid coordinates `(gx, gy)`.
+    pub fn bilinear_at(&self, gx: f32, gy: f32) -> [(usize, f32); 4] {
+        let (ru, rv) = (self.res_u.max(1), self.res_v.max(1));
         let axis = |g: f32, res: usize| -> (usize, usize, f32) {
             let x = g - 0.5;
             let x = if x.is_nan() {
