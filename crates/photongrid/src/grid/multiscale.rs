@@ -11,7 +11,7 @@
 //! Photons of different kinds (caustic, global) live in separate layers so that the scale
 //! chosen for one does not limit the other.
 
-use super::planes::{Plane, PlaneSet, NO_PLANE};
+use super::planes::{bilinear_axis, Plane, PlaneSet, NO_PLANE};
 use super::wavelet::Field2;
 use crate::photon::{Photon, PhotonKind};
 use crate::{luminance, Rgb};
@@ -143,14 +143,8 @@ impl Level {
     /// i + 0.5), clamped to the texel centres; moments about the point `(x, y)`, texels being
     /// `side` fine cells wide.
     fn bilinear(&self, x: f32, y: f32, side: f32) -> Texel {
-        let axis = |g: f32, n: usize| {
-            let t = (g - 0.5).clamp(0.0, (n - 1) as f32);
-            let i0 = (t as usize).min(n - 1);
-            let i1 = (i0 + 1).min(n - 1);
-            (i0, i1, if i1 == i0 { 0.0 } else { t - i0 as f32 })
-        };
-        let (i0, i1, fx) = axis(x, self.w);
-        let (j0, j1, fy) = axis(y, self.h);
+        let (i0, i1, fx) = bilinear_axis(x, self.w);
+        let (j0, j1, fy) = bilinear_axis(y, self.h);
         let mut t = Texel::default();
         let mut add = |i: usize, j: usize, w: f32| {
             let d = [(i as f32 + 0.5 - x) * side, (j as f32 + 0.5 - y) * side];
@@ -346,14 +340,8 @@ impl Resolved {
         if self.w == 0 || self.h == 0 {
             return Rgb::ZERO;
         }
-        let axis = |g: f32, n: usize| {
-            let t = (g / self.side - 0.5).clamp(0.0, (n - 1) as f32);
-            let i0 = (t as usize).min(n - 1);
-            let i1 = (i0 + 1).min(n - 1);
-            (i0, i1, t - i0 as f32)
-        };
-        let (i0, i1, fx) = axis(gx, self.w);
-        let (j0, j1, fy) = axis(gy, self.h);
+        let (i0, i1, fx) = bilinear_axis(gx / self.side, self.w);
+        let (j0, j1, fy) = bilinear_axis(gy / self.side, self.h);
         let (mut sum, mut weight) = (Rgb::ZERO, 0.0f32);
         for (i, j, w) in [
             (i0, j0, (1.0 - fx) * (1.0 - fy)),

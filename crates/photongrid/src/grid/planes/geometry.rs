@@ -22,6 +22,17 @@ pub const RECT_MARGIN_REL: f64 = 1e-4;
 /// [`Plane::cell_of`] (fraction of the rectangle's longer side).
 pub const CELL_OF_ROUNDING_SLACK: f32 = 1e-5;
 
+/// Bilinear interpolation along one axis of `n` cell-centred values (centres at i + 0.5) at
+/// coordinate `g` (in cells): the two cells and the second one's weight. Clamped to the
+/// centres, so the value is held beyond the first and last; NaN reads the first cell.
+#[inline]
+pub fn bilinear_axis(g: f32, n: usize) -> (usize, usize, f32) {
+    // `max` first: it takes 0 over NaN. At the last centre i0 = i1 and the weight is 0.
+    let x = (g - 0.5).max(0.0).min((n - 1) as f32);
+    let i0 = x as usize;
+    (i0, (i0 + 1).min(n - 1), x - i0 as f32)
+}
+
 /// One detected plane with its grid layout.
 ///
 /// The rectangle is `origin + s·u + t·v` for `s ∈ [0, size_u]`,
@@ -160,21 +171,9 @@ impl Plane {
 
     /// [`Plane::bilinear`] at fine grid coordinates `(gx, gy)`.
     pub fn bilinear_at(&self, gx: f32, gy: f32) -> [(usize, f32); 4] {
-        let (ru, rv) = (self.res_u.max(1), self.res_v.max(1));
-        let axis = |g: f32, res: usize| -> (usize, usize, f32) {
-            let x = g - 0.5;
-            let x = if x.is_nan() {
-                0.0
-            } else {
-                x.clamp(0.0, (res - 1) as f32)
-            };
-            let i0 = (x as usize).min(res - 1);
-            let i1 = (i0 + 1).min(res - 1);
-            let f = if i1 == i0 { 0.0 } else { (x - i0 as f32).clamp(0.0, 1.0) };
-            (i0, i1, f)
-        };
-        let (i0, i1, fx) = axis(gx, ru);
-        let (j0, j1, fy) = axis(gy, rv);
+        let ru = self.res_u.max(1);
+        let (i0, i1, fx) = bilinear_axis(gx, ru);
+        let (j0, j1, fy) = bilinear_axis(gy, self.res_v.max(1));
         [
             (j0 * ru + i0, (1.0 - fx) * (1.0 - fy)),
             (j0 * ru + i1, fx * (1.0 - fy)),

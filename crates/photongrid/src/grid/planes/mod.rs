@@ -19,4 +19,4 @@ mod tests;
 mod weld;
 
 pub use detection::{detect_planes, PlaneParams, SMOOTH_BOUNDARY_FRACTION, SMOOTH_RADIUS_RATIO};
-pub use geometry::{Plane, PlaneSet, CELL_OF_ROUNDING_SLACK, NO_PLANE, RECT_MARGIN_REL};
+pub use geometry::{bilinear_axis, Plane, PlaneSet, CELL_OF_ROUNDING_SLACK, NO_PLANE, RECT_MARGIN_REL};

@@ -486,6 +486,19 @@ fn grid_geometry_corner_centres_and_clamping() {
     assert_eq!(re.cell_of(far, 0.0), Some(3));
 }
 
+/// One axis of the bilinear weights: between two centres, held past the first and last, and
+/// NaN or infinite coordinates read the border cells with finite weights.
+#[test]
+fn bilinear_axis_between_centres_and_at_the_borders() {
+    assert_eq!(bilinear_axis(2.75, 8), (2, 3, 0.25));
+    assert_eq!(bilinear_axis(0.2, 8), (0, 1, 0.0));
+    assert_eq!(bilinear_axis(7.9, 8), (7, 7, 0.0));
+    assert_eq!(bilinear_axis(0.7, 1), (0, 0, 0.0));
+    assert_eq!(bilinear_axis(f32::NAN, 8), (0, 1, 0.0));
+    assert_eq!(bilinear_axis(f32::INFINITY, 8), (7, 7, 0.0));
+    assert_eq!(bilinear_axis(f32::NEG_INFINITY, 8), (0, 1, 0.0));
+}
+
 #[test]
 fn bilinear_is_continuous() {
     let (pl, _) = tilted_plane(16);
