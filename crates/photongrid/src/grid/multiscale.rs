@@ -192,6 +192,32 @@ pub fn layer_of(p: &Photon, max_depth: u32) -> usize {
 /// traced.
 const COUNT_CHUNK: usize = 1 << 20;
 
+/// Photons per block of a chunk, landed and sorted by one thread.
+const COUNT_BLOCK: usize = 1 << 16;
+
+/// Photons' power (luminance, times their pass's weight) and count per layer.
+#[derive(Clone, Copy, Debug, Default)]
+struct Counted {
+    power: [f64; LAYERS],
+    n: [usize; LAYERS],
+}
+
+impl Counted {
+    fn add(&mut self, o: &Counted) {
+        for l in 0..LAYERS {
+            self.power[l] += o.power[l];
+            self.n[l] += o.n[l];
+        }
+    }
+}
+
+/// A block's landings sorted by run, and where each run starts (one more entry than runs).
+struct LandedBlock {
+    landed: Vec<Landing>,
+    start: Vec<u32>,
+    counted: Counted,
+}
+
 /// Fine cells per run that a chunk's photons are sorted into before they are added: a run's
 /// texels (about 300 kB) stay in the cache while its photons are added.
 const COUNT_RUN_CELLS: usize = 4096;
@@ -1185,17 +1211,24 @@ fn set_clearance(plane: &Plane, cells: &mut [Texel], probes: &Probes<'_>, reach:
 /// seen from below (a blocker, a shelf made of one quad) must not show its top's light
 /// underneath; queries from the other side fall back to the photon map.
 fn orient_to_the_light(set: &mut PlaneSet, photons: &[Photon], triangles: &[u32]) {
-    let mut side = vec![0i64; set.planes.len()];
-    for (p, &t) in photons.iter().zip(triangles) {
-        let plane = set.plane_of_triangle.get(t as usize).copied().unwrap_or(NO_PLANE);
-        if plane != NO_PLANE {
-            side[plane as usize] += if p.normal().dot(set.planes[plane as usize].normal) >= 0.0 {
+    let side = per_plane_blocks(
+        set,
+        photons,
+        triangles,
+        vec![0i64; set.planes.len()],
+        |side, p, plane| {
+            side[plane] += if p.normal().dot(set.planes[plane].normal) >= 0.0 {
                 1
             } else {
                 -1
             };
-        }
-    }
+        },
+    )
+    .into_iter()
+    .fold(vec![0i64; set.planes.len()], |mut a, b| {
+        a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
+        a
+    });
     for (plane, s) in set.planes.iter_mut().zip(side) {
         if s < 0 {
             plane.normal = -plane.normal;
@@ -1203,11 +1236,38 @@ fn orient_to_the_light(set: &mut PlaneSet, photons: &[Photon], triangles: &[u32]
     }
 }
 
-/// Per fine cell of `plane`: a photon landed in it or in one of its eight neighbours.
-fn lit_cells(plane: &Plane, landed: &[Vec3]) -> Vec<bool> {
+/// `visit` every photon (landed on `triangles[i]`) that landed on a plane, with the plane's
+/// index, in blocks of [`COUNT_BLOCK`] photons in parallel, each block into its own copy of
+/// `empty`; the blocks' results in photon order.
+fn per_plane_blocks<T: Clone + Send + Sync>(
+    set: &PlaneSet,
+    photons: &[Photon],
+    triangles: &[u32],
+    empty: T,
+    visit: impl Fn(&mut T, &Photon, usize) + Sync,
+) -> Vec<T> {
+    photons
+        .par_chunks(COUNT_BLOCK)
+        .zip(triangles.par_chunks(COUNT_BLOCK))
+        .map(|(ps, ts)| {
+            let mut acc = empty.clone();
+            for (p, &t) in ps.iter().zip(ts) {
+                let plane = set.plane_of_triangle.get(t as usize).copied().unwrap_or(NO_PLANE);
+                if plane != NO_PLANE {
+                    visit(&mut acc, p, plane as usize);
+                }
+            }
+            acc
+        })
+        .collect()
+}
+
+/// Per fine cell of `plane`: a photon landed in it or in one of its eight neighbours
+/// (`landed`: the positions of the plane's photons, in blocks).
+fn lit_cells(plane: &Plane, landed: &[&[Vec3]]) -> Vec<bool> {
     let (w, h) = (plane.res_u, plane.res_v);
     let mut hit = vec![false; w * h];
-    for &x in landed {
+    for &x in landed.iter().copied().flatten() {
         if let Some(c) = plane.cell_of(x, f32::INFINITY) {
             hit[c] = true;
         }
@@ -1227,6 +1287,58 @@ fn lit_cells(plane: &Plane, landed: &[Vec3]) -> Vec<bool> {
     lit
 }
 
+/// Every plane's layer textures at their fine resolutions `dims`: the surface under each
+/// cell (of `tris`), less what is buried under something resting on the plane, and for global
+/// light the open space in front; from the first pass's photons (landed on their triangles).
+fn sized_textures(
+    set: &PlaneSet,
+    dims: &[[((usize, usize), Sizing); LAYERS]],
+    tris: &[[Vec3; 3]],
+    (photons, triangles): (&[Photon], &[u32]),
+    params: &MultiscaleParams,
+    probes: &Probes<'_>,
+) -> Vec<[LayerTexture; LAYERS]> {
+    // Where photons land, nothing rests on the plane: they veto the buried test, whose
+    // rays can be fooled by open or one-sided meshes.
+    let mut blocks = per_plane_blocks(
+        set,
+        photons,
+        triangles,
+        vec![Vec::new(); set.planes.len()],
+        |l, p, plane| l[plane].push(p.pos()),
+    );
+    // The positions are held while every plane is sized: no room to spare.
+    blocks.iter_mut().flatten().for_each(Vec::shrink_to_fit);
+    let landed: Vec<Vec<&[Vec3]>> = (0..set.planes.len())
+        .map(|plane| blocks.iter().map(|b: &Vec<Vec<Vec3>>| b[plane].as_slice()).collect())
+        .collect();
+    set.planes
+        .par_iter()
+        .zip(dims)
+        .zip(&landed)
+        .map(|((p, layer_dims), landed)| {
+            std::array::from_fn(|l| {
+                let ((ru, rv), sizing) = layer_dims[l];
+                let plane = p.clone().with_resolution(ru, rv);
+                let mut area = coverage(&plane, tris);
+                let lit = lit_cells(&plane, landed);
+                area.par_iter_mut().enumerate().for_each(|(cell, a)| {
+                    if a.area > 0.0 && !lit[cell] && (probes.buried)(plane.cell_center(cell), plane.normal) {
+                        *a = Texel::default();
+                    }
+                });
+                // Global light changes next to what stands on the plane, so its
+                // kernels stop at the open space in front; caustics choose their scale
+                // from their own sharp structure.
+                if l != CAUSTIC {
+                    set_clearance(&plane, &mut area, probes, params.max_radius);
+                }
+                LayerTexture::new(plane, sizing, area, Edges::of_layer(l))
+            })
+        })
+        .collect()
+}
+
 impl MultiscaleGrids {
     /// Size every plane's layers from the first pass's photons (landing on `triangles[i]`)
     /// and count them; `probes` find buried area and the clearance in front of the planes.
@@ -1241,42 +1353,8 @@ impl MultiscaleGrids {
     ) -> Self {
         orient_to_the_light(&mut set, photons, triangles);
         let (dims, cells_grown) = fine_resolutions(&set, photons, triangles, params);
-        // Where photons land, nothing rests on the plane: they veto the buried test, whose
-        // rays can be fooled by open or one-sided meshes.
-        let mut landed: Vec<Vec<Vec3>> = vec![Vec::new(); set.planes.len()];
-        for (p, &t) in photons.iter().zip(triangles) {
-            let plane = set.plane_of_triangle.get(t as usize).copied().unwrap_or(NO_PLANE);
-            if plane != NO_PLANE {
-                landed[plane as usize].push(p.pos());
-            }
-        }
         let started = std::time::Instant::now();
-        let textures: Vec<[LayerTexture; LAYERS]> = set
-            .planes
-            .par_iter()
-            .zip(&dims)
-            .zip(&landed)
-            .map(|((p, layer_dims), landed)| {
-                std::array::from_fn(|l| {
-                    let ((ru, rv), sizing) = layer_dims[l];
-                    let plane = p.clone().with_resolution(ru, rv);
-                    let mut area = coverage(&plane, tris);
-                    let lit = lit_cells(&plane, landed);
-                    area.par_iter_mut().enumerate().for_each(|(cell, a)| {
-                        if a.area > 0.0 && !lit[cell] && (probes.buried)(plane.cell_center(cell), plane.normal) {
-                            *a = Texel::default();
-                        }
-                    });
-                    // Global light changes next to what stands on the plane, so its
-                    // kernels stop at the open space in front; caustics choose their scale
-                    // from their own sharp structure.
-                    if l != CAUSTIC {
-                        set_clearance(&plane, &mut area, probes, params.max_radius);
-                    }
-                    LayerTexture::new(plane, sizing, area, Edges::of_layer(l))
-                })
-            })
-            .collect();
+        let textures = sized_textures(&set, &dims, tris, (photons, triangles), params, probes);
         tracing::debug!(
             seconds = started.elapsed().as_secs_f64(),
             cells = textures
@@ -1313,13 +1391,7 @@ impl MultiscaleGrids {
             (Some(e), Some(r)) => e.relative_to(r),
             _ => [1.0; LAYERS],
         };
-        let (mut power, mut n) = ([0.0f64; LAYERS], [0usize; LAYERS]);
-        for p in photons {
-            let layer = layer_of(p, self.max_depth);
-            power[layer] += (luminance(p.power()) * weight[layer]) as f64;
-            n[layer] += 1;
-        }
-        self.count(photons, triangles, weight);
+        let Counted { power, n } = self.count(photons, triangles, weight);
         self.passes += 1;
         self.update_plane_share(power[DIRECT] + power[INDIRECT]);
         for l in 0..LAYERS {
@@ -1342,61 +1414,94 @@ impl MultiscaleGrids {
     }
 
     /// Count one pass's photons into level 0 of the textures, each layer's flux times its
-    /// `weight`.
-    fn count(&mut self, photons: &[Photon], triangles: &[u32], weight: [f32; LAYERS]) {
+    /// `weight`; return every photon's power and count per layer (on the planes or not).
+    fn count(&mut self, photons: &[Photon], triangles: &[u32], weight: [f32; LAYERS]) -> Counted {
         // Photons land all over the planes, whose texels can take hundreds of megabytes: a
-        // chunk of them is read in order (in parallel), its landings are sorted stably into
-        // runs of texels, and each texture adds its runs in order. Every texel still sums
-        // its photons in the order they were traced, so the result does not depend on this.
+        // chunk of them is read in blocks (in parallel), each block's landings are sorted
+        // stably into runs of texels, and each texture adds its runs block by block. Every
+        // texel still sums its photons in the order they were traced, so the result does not
+        // depend on this.
         let mut run_base = vec![0usize];
         for tex in self.textures.iter().flatten() {
             run_base.push(run_base.last().copied().unwrap_or(0) + tex.count_runs());
         }
-        let runs = run_base.last().copied().unwrap_or(0);
-        let max_depth = self.max_depth;
-        for (chunk, tris) in photons.chunks(COUNT_CHUNK).zip(triangles.chunks(COUNT_CHUNK)) {
-            let landed: Vec<(u32, Landing)> = chunk
-                .par_iter()
-                .zip(tris)
-                .with_min_len(1 << 12)
-                .filter_map(|(p, &t)| {
-                    let plane = self.set.plane_of_triangle.get(t as usize).copied().unwrap_or(NO_PLANE);
-                    let tex = self.textures.get(plane as usize)?;
-                    let layer = layer_of(p, max_depth);
-                    let mut l = tex[layer].landing(p)?;
-                    l.flux = l.flux.map(|f| f * weight[layer]);
-                    let run = run_base[plane as usize * LAYERS + layer] + l.cell as usize / COUNT_RUN_CELLS;
-                    Some((run as u32, l))
+        let mut total = Counted::default();
+        for chunk in (0..photons.len()).step_by(COUNT_CHUNK) {
+            let blocks: Vec<LandedBlock> = (chunk..(chunk + COUNT_CHUNK).min(photons.len()))
+                .step_by(COUNT_BLOCK)
+                .collect::<Vec<_>>()
+                .into_par_iter()
+                .map(|b| {
+                    let end = (b + COUNT_BLOCK).min(chunk + COUNT_CHUNK).min(photons.len());
+                    // Photons without a triangle (none recorded) count, but land nowhere.
+                    let tris = triangles.get(b..end.min(triangles.len())).unwrap_or(&[]);
+                    self.land_block(&photons[b..end], tris, weight, &run_base)
                 })
                 .collect();
-            let mut start = vec![0usize; runs + 1];
-            for (run, _) in &landed {
-                start[*run as usize + 1] += 1;
-            }
-            for r in 0..runs {
-                start[r + 1] += start[r];
-            }
-            let bounds: Vec<usize> = run_base.iter().map(|&r| start[r]).collect();
-            let mut sorted = vec![Landing::default(); landed.len()];
-            for (run, l) in landed {
-                let slot = &mut start[run as usize];
-                sorted[*slot] = l;
-                *slot += 1;
-            }
-            let mut slices = Vec::with_capacity(bounds.len().saturating_sub(1));
-            let mut rest = sorted.as_slice();
-            for w in bounds.windows(2) {
-                let (head, tail) = rest.split_at(w[1] - w[0]);
-                slices.push(head);
-                rest = tail;
+            for b in &blocks {
+                total.add(&b.counted);
             }
             self.textures
                 .iter_mut()
                 .flatten()
-                .zip(slices)
+                .enumerate()
                 .collect::<Vec<_>>()
                 .into_par_iter()
-                .for_each(|(tex, landed)| tex.add_landed(landed));
+                .for_each(|(i, tex)| {
+                    for b in &blocks {
+                        let (lo, hi) = (b.start[run_base[i]], b.start[run_base[i + 1]]);
+                        tex.add_landed(&b.landed[lo as usize..hi as usize]);
+                    }
+                });
+        }
+        total
+    }
+
+    /// Where a block of photons (landed on `triangles`) lands, sorted stably by run of
+    /// texels (runs numbered from `run_base` per texture and layer), with their power.
+    fn land_block(
+        &self,
+        photons: &[Photon],
+        triangles: &[u32],
+        weight: [f32; LAYERS],
+        run_base: &[usize],
+    ) -> LandedBlock {
+        let runs = run_base.last().copied().unwrap_or(0);
+        let mut counted = Counted::default();
+        let mut landed: Vec<(u32, Landing)> = Vec::with_capacity(photons.len());
+        for (k, p) in photons.iter().enumerate() {
+            let layer = layer_of(p, self.max_depth);
+            counted.power[layer] += (luminance(p.power()) * weight[layer]) as f64;
+            counted.n[layer] += 1;
+            let t = triangles.get(k).copied().unwrap_or(u32::MAX);
+            let plane = self.set.plane_of_triangle.get(t as usize).copied().unwrap_or(NO_PLANE);
+            let Some(tex) = self.textures.get(plane as usize) else {
+                continue;
+            };
+            if let Some(mut l) = tex[layer].landing(p) {
+                l.flux = l.flux.map(|f| f * weight[layer]);
+                let run = run_base[plane as usize * LAYERS + layer] + l.cell as usize / COUNT_RUN_CELLS;
+                landed.push((run as u32, l));
+            }
+        }
+        let mut start = vec![0u32; runs + 1];
+        for (run, _) in &landed {
+            start[*run as usize + 1] += 1;
+        }
+        for r in 0..runs {
+            start[r + 1] += start[r];
+        }
+        let mut next = start.clone();
+        let mut sorted = vec![Landing::default(); landed.len()];
+        for (run, l) in landed {
+            let slot = &mut next[run as usize];
+            sorted[*slot as usize] = l;
+            *slot += 1;
+        }
+        LandedBlock {
+            landed: sorted,
+            start,
+            counted,
         }
     }
 
@@ -1565,16 +1670,19 @@ fn fine_resolutions(
         .iter()
         .map(|p| p.clone().with_resolution(COARSE, COARSE))
         .collect();
-    let mut counts = vec![[[0u32; COARSE * COARSE]; LAYERS]; set.planes.len()];
-    for (p, &t) in photons.iter().zip(triangles) {
-        let plane = set.plane_of_triangle.get(t as usize).copied().unwrap_or(NO_PLANE);
-        if plane == NO_PLANE {
-            continue;
+    let empty = vec![[[0u32; COARSE * COARSE]; LAYERS]; set.planes.len()];
+    let counts = per_plane_blocks(set, photons, triangles, empty.clone(), |counts, p, plane| {
+        if let Some(c) = coarse[plane].cell_of(p.pos(), f32::INFINITY) {
+            counts[plane][layer_of(p, params.max_depth)][c] += 1;
         }
-        if let Some(c) = coarse[plane as usize].cell_of(p.pos(), f32::INFINITY) {
-            counts[plane as usize][layer_of(p, params.max_depth)][c] += 1;
+    })
+    .into_iter()
+    .fold(empty, |mut a, b| {
+        for (x, y) in a.iter_mut().flatten().flatten().zip(b.iter().flatten().flatten()) {
+            *x += y;
         }
-    }
+        a
+    });
     let mut cell: Vec<[(f32, Sizing); LAYERS]> = coarse
         .iter()
         .zip(&counts)
@@ -2156,6 +2264,70 @@ mod tests {
                     assert!(!o, "level {level}: inner texel ({x}, {y}) on the outline");
                 }
             }
+        }
+    }
+
+    #[test]
+    fn photons_are_counted_in_the_order_they_were_traced() {
+        // More photons than a counting block, of every layer and many powers, some without a
+        // recorded triangle: every fine texel's sums are the ones a plain loop over the
+        // photons in order gives, to the last bit, and the layers' mean powers count every
+        // photon, landed or not.
+        let tris = square(2.0);
+        let set = detect_planes(&tris, &PlaneParams::default());
+        let mut rng = Rng::keyed(5, 1, 9);
+        let kinds = [PhotonKind::Direct, PhotonKind::Indirect, PhotonKind::Caustic];
+        let photons: Vec<Photon> = (0..COUNT_BLOCK * 2 + 1234)
+            .map(|i| {
+                let at = Vec3::new(2.0 * rng.uniform(), 0.0, 2.0 * rng.uniform());
+                let power = Rgb::new(rng.uniform(), rng.uniform(), rng.uniform()) * 1e-3;
+                Photon::new(at, power, Vec3::Y, Vec3::Y, kinds[i % 3])
+            })
+            .collect();
+        let triangles = vec![0u32; photons.len() - 1000];
+        let probes = Probes {
+            buried: &|_, _| false,
+            clearance: &|_, _, _| f32::INFINITY,
+        };
+        let g = MultiscaleGrids::build(
+            set,
+            &tris,
+            &photons,
+            &triangles,
+            &MultiscaleParams::default(),
+            &probes,
+            None,
+        );
+        for layer in [DIRECT, INDIRECT, CAUSTIC] {
+            let tex = &g.textures[0][layer];
+            let mut want = vec![Texel::default(); tex.levels[0].texels.len()];
+            let (mut power, mut n) = (0.0f64, 0usize);
+            for (i, p) in photons.iter().enumerate() {
+                if layer_of(p, g.max_depth) != layer {
+                    continue;
+                }
+                power += luminance(p.power()) as f64;
+                n += 1;
+                let Some(l) = tex.landing(p).filter(|_| i < triangles.len()) else {
+                    continue;
+                };
+                let t = &mut want[l.cell as usize];
+                let lum = luminance(Rgb::from_array(l.flux));
+                t.flux[0] += l.flux[0];
+                t.flux[1] += l.flux[1];
+                t.flux[2] += l.flux[2];
+                t.var += lum * lum;
+                t.count += 1.0;
+            }
+            for (got, want) in tex.levels[0].texels.iter().zip(&want) {
+                assert_eq!((got.flux, got.var, got.count), (want.flux, want.var, want.count));
+            }
+            let mean = (power / n as f64) as f32;
+            assert!(
+                (g.mean_power[layer] / mean - 1.0).abs() < 1e-6,
+                "{} vs {mean}",
+                g.mean_power[layer]
+            );
         }
     }
 
