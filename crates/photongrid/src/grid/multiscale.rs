@@ -2273,8 +2273,6 @@ mod tests {
         // recorded triangle: every fine texel's sums are the ones a plain loop over the
         // photons in order gives, to the last bit, and the layers' mean powers count every
         // photon, landed or not.
-        let tris = square(2.0);
-        let set = detect_planes(&tris, &PlaneParams::default());
         let mut rng = Rng::keyed(5, 1, 9);
         let kinds = [PhotonKind::Direct, PhotonKind::Indirect, PhotonKind::Caustic];
         let photons: Vec<Photon> = (0..COUNT_BLOCK * 2 + 1234)
@@ -2285,19 +2283,7 @@ mod tests {
             })
             .collect();
         let triangles = vec![0u32; photons.len() - 1000];
-        let probes = Probes {
-            buried: &|_, _| false,
-            clearance: &|_, _, _| f32::INFINITY,
-        };
-        let g = MultiscaleGrids::build(
-            set,
-            &tris,
-            &photons,
-            &triangles,
-            &MultiscaleParams::default(),
-            &probes,
-            None,
-        );
+        let g = open_square_grids(&photons, &triangles, &MultiscaleParams::default());
         for layer in [DIRECT, INDIRECT, CAUSTIC] {
             let tex = &g.textures[0][layer];
             let mut want = vec![Texel::default(); tex.levels[0].texels.len()];
@@ -2333,15 +2319,19 @@ mod tests {
 
     /// Grids over the 2 m square from the lattice's photons, nothing standing on it.
     fn lattice_grids(params: &MultiscaleParams) -> MultiscaleGrids {
+        let photons = lattice_photons();
+        open_square_grids(&photons, &vec![0; photons.len()], params)
+    }
+
+    /// Grids over the 2 m square from `photons` (landed on `triangles`), nothing standing on it.
+    fn open_square_grids(photons: &[Photon], triangles: &[u32], params: &MultiscaleParams) -> MultiscaleGrids {
         let tris = square(2.0);
         let set = detect_planes(&tris, &PlaneParams::default());
-        let photons = lattice_photons();
-        let triangles = vec![0; photons.len()];
         let probes = Probes {
             buried: &|_, _| false,
             clearance: &|_, _, _| f32::INFINITY,
         };
-        MultiscaleGrids::build(set, &tris, &photons, &triangles, params, &probes, None)
+        MultiscaleGrids::build(set, &tris, photons, triangles, params, &probes, None)
     }
 
     #[test]
