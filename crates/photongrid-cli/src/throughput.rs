@@ -170,6 +170,7 @@ fn classic_trace(opts: &ThroughputOptions, paths: usize) -> TraceSettings {
         max_depth: classic_settings(opts).photon_hits(),
         store_direct: true,
         seed: opts.seed,
+        sequences: photongrid::photon::Sequences::starting(opts.seed),
         record_triangles: false,
         caustic_photons: 0,
     }

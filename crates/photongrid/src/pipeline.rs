@@ -10,7 +10,7 @@ use crate::film::Film;
 use crate::grid::multiscale::{Emitted, MultiscaleGrids, MultiscaleParams, Probes, DIRECT, INDIRECT};
 use crate::grid::PlaneGrids;
 use crate::grid::{GridParams, Grids};
-use crate::photon::{trace_photons, Photon, PhotonKind, PhotonStats, TraceSettings};
+use crate::photon::{trace_photons, Photon, PhotonKind, PhotonStats, Sequences, TraceSettings};
 use crate::progress::Progress;
 use crate::render::budget::{corrected, plan, Costs, PassSize, Plan, Stage, GATHER_LADDER};
 use crate::render::progressive::{Accumulator, Budget, Stop};
@@ -501,6 +501,8 @@ struct PassLoop<'a> {
     surfaces: Surfaces<'a>,
     /// Final-gather rays per pixel over the passes so far.
     gather_rays: f32,
+    /// Where the next pass's photons start in the emitting sequences.
+    sequences: Sequences,
 }
 
 impl<'a> PassLoop<'a> {
@@ -524,7 +526,6 @@ impl<'a> PassLoop<'a> {
             scene,
             accel,
             cameras,
-            settings,
             deadline,
             weight: 1.0,
             filled: false,
@@ -533,6 +534,8 @@ impl<'a> PassLoop<'a> {
             grids: GridState::default(),
             surfaces,
             gather_rays: 0.0,
+            sequences: Sequences::starting(settings.seed),
+            settings,
         }
     }
 
@@ -543,7 +546,9 @@ impl<'a> PassLoop<'a> {
         let started = Instant::now();
         let (scene, accel, settings) = (self.scene, self.accel, &self.settings);
         let times = &mut report.seconds;
-        let photons = trace_pass(scene, accel, settings, done, &mut self.grids, progress, times);
+        let at = (done, self.sequences);
+        let photons = trace_pass(scene, accel, settings, at, &mut self.grids, progress, times);
+        self.sequences = self.sequences.after(&photons.stats);
         report.memory.photon_map_bytes = report.memory.photon_map_bytes.max(photons.map.memory_bytes());
         self.gather_rays += settings.spp as f32 * settings.effective_gather() as f32;
         let input = PhotonData {
@@ -828,7 +833,7 @@ fn probe_costs(
         scene,
         accel,
         &probe_settings,
-        u32::MAX,
+        (u32::MAX, Sequences::starting(pass_seed(settings.seed, u32::MAX))),
         &mut grids,
         progress,
         &mut scratch,
@@ -1136,14 +1141,15 @@ struct PassPhotons {
     irradiance: Option<IrradianceCache>,
 }
 
-/// Trace pass `pass`'s photons (seed [`pass_seed`]) and index them. When the estimate needs
-/// grids, their counts are added to `grids` (created at pass 0), which is then refiltered: the
-/// textures hold every pass's photons so far. Phase times are added to `times`.
+/// Trace pass `pass`'s photons (seed [`pass_seed`], from where `sequences` says) and index
+/// them. When the estimate needs grids, their counts are added to `grids` (created at pass 0),
+/// which is then refiltered: the textures hold every pass's photons so far. Phase times are
+/// added to `times`.
 fn trace_pass(
     scene: &Scene,
     accel: &Accel,
     settings: &Settings,
-    pass: u32,
+    (pass, sequences): (u32, Sequences),
     grids: &mut GridState,
     progress: &Progress<'_>,
     times: &mut PhaseTimes,
@@ -1156,6 +1162,7 @@ fn trace_pass(
         max_depth: settings.photon_hits(),
         store_direct: settings.direct == DirectLighting::Photons || gather > 0,
         seed: pass_seed(settings.seed, pass),
+        sequences,
         // Gathering's irradiance points measure the surface under their discs on the photon's
         // triangle.
         record_triangles: needs.photon_triangles || gather > 0,
@@ -1368,7 +1375,8 @@ pub fn prepare(
     check_photon_memory(settings.photons, caustic_photons(scene, settings))?;
     let accel = build_accel(scene, progress, times);
     let mut grids = GridState::default();
-    let pass = trace_pass(scene, &accel, settings, 0, &mut grids, progress, times);
+    let at = (0, Sequences::starting(settings.seed));
+    let pass = trace_pass(scene, &accel, settings, at, &mut grids, progress, times);
     Ok(Prepared {
         accel,
         map: pass.map,

@@ -580,6 +580,61 @@ fn a_smooth_glass_slab_lets_through_what_fresnel_says() {
 }
 
 #[test]
+fn progressive_passes_continue_the_emitting_sequences() {
+    // A point light above a glass square over a floor: a photon's first hit, and its first
+    // diffuse hit through the glass (both Fresnel branches followed), depend only on the Sobol
+    // point it is emitted from. Two passes of n paths, the second continuing the sequences,
+    // then land their direct and caustic photons exactly where one pass of 2n paths does; a
+    // second pass scrambled on its own does not.
+    use photongrid::photon::{trace_photons, PhotonKind, Sequences, TraceSettings};
+    let dir = TempDir::new("sequences");
+    let path = plane_scene(&dir, Material::lambert(0.5), Some(Material::glass(None)));
+    let scene = photongrid::load(&path).unwrap_or_else(|e| panic!("{e}"));
+    let accel = photongrid::accel::Accel::for_scene(&scene);
+    let n = 3000; // not a whole number of the tracer's chunks
+    let trace = |paths: usize, seed: u64, sequences: Sequences| {
+        let settings = TraceSettings {
+            photons: paths,
+            max_depth: 3,
+            store_direct: true,
+            seed,
+            sequences,
+            record_triangles: false,
+            caustic_photons: paths,
+        };
+        trace_photons(&scene, &accel, &settings, &|_| {})
+    };
+    // Where the direct and caustic photons landed, as bits, sorted.
+    let landed = |photons: &[photongrid::photon::Photon]| {
+        let mut v: Vec<(bool, [u32; 3])> = photons
+            .iter()
+            .filter(|p| p.kind() != PhotonKind::Indirect)
+            .map(|p| (p.kind() == PhotonKind::Caustic, p.pos().to_array().map(f32::to_bits)))
+            .collect();
+        v.sort_unstable();
+        v
+    };
+    let start = Sequences::starting(7);
+    let (one, _, _) = trace(2 * n, 7, start);
+    let (first, _, stats) = trace(n, 7, start);
+    let (second, _, _) = trace(n, 8, start.after(&stats));
+    let (own, _, _) = trace(n, 8, Sequences::starting(8));
+    let one = landed(&one);
+    assert!(one.iter().filter(|p| p.0).count() > n / 4, "caustic photons");
+    assert!(one.iter().filter(|p| !p.0).count() > n / 2, "direct photons");
+    assert_eq!(landed(&[first.clone(), second].concat()), one);
+    assert_ne!(landed(&[first, own].concat()), one);
+    assert_eq!(
+        start.after(&stats),
+        Sequences {
+            seed: 7,
+            global: n as u32,
+            caustic: n as u32
+        }
+    );
+}
+
+#[test]
 fn caustic_paths_that_miss_the_glass_are_counted() {
     // A point light 1 m above a 1 m glass square: the caustic pass aims at the square's
     // bounding sphere, so the share of its paths whose first hit is not the glass is one
@@ -593,6 +648,7 @@ fn caustic_paths_that_miss_the_glass_are_counted() {
         max_depth: 8,
         store_direct: false,
         seed: 3,
+        sequences: photongrid::photon::Sequences::starting(3),
         record_triangles: false,
         caustic_photons: 200_000,
     };

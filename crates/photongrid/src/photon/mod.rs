@@ -6,4 +6,4 @@ pub mod store;
 pub mod trace;
 
 pub use store::{Photon, PhotonKind};
-pub use trace::{trace_photons, PhotonStats, TraceSettings};
+pub use trace::{trace_photons, PhotonStats, Sequences, TraceSettings};

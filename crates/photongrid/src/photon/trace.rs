@@ -24,13 +24,62 @@ pub struct TraceSettings {
     pub max_depth: u32,
     /// Keep photons of direct light (the single-map method needs them; shadow rays do not).
     pub store_direct: bool,
-    /// Random seed.
+    /// Random seed (keys each path's own random numbers).
     pub seed: u64,
+    /// Where the paths start in the Sobol sequences their first numbers come from.
+    pub sequences: Sequences,
     /// Also return the triangle each photon landed on (for the plane grids).
     pub record_triangles: bool,
     /// Extra paths aimed at mirrors and glass, storing caustic photons only (0: none; also
     /// none when the scene has no specular surface).
     pub caustic_photons: usize,
+}
+
+/// Where a photon pass's paths start in the Sobol sequences that emit them, one per kind of
+/// path (global, caustic), scrambled by `seed`. Progressive passes continue the sequences, so
+/// that all passes' photons together spread as evenly as one pass of their number; passes
+/// scrambled independently each spread evenly, but their union does not.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Sequences {
+    /// The scrambles' seed.
+    pub seed: u64,
+    /// The first global path's position.
+    pub global: u32,
+    /// The first caustic path's position.
+    pub caustic: u32,
+}
+
+impl Sequences {
+    /// Both sequences from their start, scrambled by `seed`.
+    pub fn starting(seed: u64) -> Self {
+        Sequences {
+            seed,
+            global: 0,
+            caustic: 0,
+        }
+    }
+
+    /// Where the pass after one of `stats.emitted` global and `stats.caustic_emitted` caustic
+    /// paths starts.
+    pub fn after(self, stats: &PhotonStats) -> Self {
+        let on = |start: u32, n: usize| u32::try_from(start as usize + n).unwrap_or(u32::MAX);
+        Sequences {
+            seed: self.seed,
+            global: on(self.global, stats.emitted),
+            caustic: on(self.caustic, stats.caustic_emitted),
+        }
+    }
+
+    /// The scrambles' seed and first position of a pass of `paths` paths from `start`: the
+    /// sequence has 2³² positions, and a pass that would run past them starts a sequence of
+    /// its own, scrambled by `pass_seed` (positions wrapping round would repeat points).
+    fn place(self, start: u32, paths: usize, pass_seed: u64) -> (u64, u32) {
+        if start as u64 + paths as u64 <= 1 << 32 {
+            (self.seed, start)
+        } else {
+            (pass_seed ^ 0x5345_5155_454E_4345, 0)
+        }
+    }
 }
 
 /// Which photons a pass stores.
@@ -60,11 +109,14 @@ struct Pass {
     kind: PassKind,
     stream: u64,
     paths: usize,
+    /// The scrambles' seed and the first path's position in the pass's Sobol sequence.
+    sequence: (u64, u32),
 }
 
 /// Trace `pass.paths` paths in parallel chunks, appending their photons to `all` in path
-/// order; photon `i` is emitted from position `i` of the pass's scrambled Sobol sequence in
-/// Gray-code order ([`SobolWalk`], [`Stratified`]), then follows its own keyed random stream.
+/// order; photon `i` is emitted from the point `i` positions after the pass's first in its
+/// scrambled Sobol sequence, in Gray-code order ([`SobolWalk`], [`Stratified`]), then follows
+/// its own keyed random stream.
 /// The chunks run in waves of [`WAVE`]; a wave's photons are appended while the next wave is
 /// traced (one thread appends, then joins the tracing): the photons exist once, plus two
 /// waves' buffers (collecting every chunk first held them twice), and no thread waits for the
@@ -80,7 +132,8 @@ fn run_pass(
 ) {
     let n = pass.paths;
     let chunks = n.div_ceil(CHUNK);
-    let scrambles = Scrambles::new(settings.seed, pass.stream);
+    let (sequence_seed, first) = pass.sequence;
+    let scrambles = Scrambles::new(sequence_seed, pass.stream);
     let tracer = Tracer {
         scene,
         accel,
@@ -96,7 +149,7 @@ fn run_pass(
             kinds: PhotonStats::default(),
         };
         let end = ((c + 1) * CHUNK).min(n);
-        let mut walk = SobolWalk::starting_at((c * CHUNK) as u32);
+        let mut walk = SobolWalk::starting_at(first + (c * CHUNK) as u32);
         for i in c * CHUNK..end {
             let mut rng = Rng::keyed(settings.seed, pass.stream, i as u64);
             let emitted = emit(&mut Stratified::new(walk.next_point(), &scrambles, &mut rng));
@@ -246,6 +299,7 @@ pub fn trace_photons(
         },
         stream: stream::PHOTONS,
         paths: n,
+        sequence: settings.sequences.place(settings.sequences.global, n, settings.seed),
     };
     let mut out = PassOutput::default();
     run_pass(
@@ -269,6 +323,7 @@ pub fn trace_photons(
             kind: PassKind::Caustic,
             stream: stream::CAUSTIC_PHOTONS,
             paths: nc,
+            sequence: settings.sequences.place(settings.sequences.caustic, nc, settings.seed),
         };
         run_pass(
             scene,
@@ -536,5 +591,29 @@ fn specular_roulette(weight: Rgb, rng: &mut Rng) -> Option<Rgb> {
         Some(weight / q)
     } else {
         Some(weight)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_pass_that_would_run_past_the_sequence_starts_its_own() {
+        let s = Sequences::starting(5);
+        assert_eq!(s.place(0, 1000, 9), (5, 0));
+        let late = u32::MAX - 999;
+        assert_eq!(s.place(late, 1000, 9), (5, late), "the last position is still free");
+        let (seed, first) = s.place(late, 1001, 9);
+        assert_eq!(first, 0);
+        assert_ne!(seed, 5);
+        assert_ne!(seed, s.place(late, 1001, 10).0, "each pass scrambles its own");
+        let stats = PhotonStats {
+            emitted: usize::MAX / 2,
+            caustic_emitted: 10,
+            ..Default::default()
+        };
+        let next = s.after(&stats);
+        assert_eq!((next.global, next.caustic), (u32::MAX, 10), "saturates");
     }
 }
