@@ -39,7 +39,7 @@ pub struct TraceSettings {
 /// path (global, caustic), scrambled by `seed`. Progressive passes continue the sequences, so
 /// that all passes' photons together spread as evenly as one pass of their number; passes
 /// scrambled independently each spread evenly, but their union does not.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct Sequences {
     /// The scrambles' seed.
     pub seed: u64,
