@@ -579,6 +579,16 @@ fn a_smooth_glass_slab_lets_through_what_fresnel_says() {
     assert!((got / want - 1.0).abs() < 0.015, "{got} vs {want}");
 }
 
+/// The point light over a 1 m glass square over a floor ([`plane_scene`]), loaded, with its
+/// BVH; the scene's files live in a temporary folder named `name`.
+fn glass_over_floor(name: &str) -> (photongrid::scene::Scene, photongrid::accel::Accel) {
+    let dir = TempDir::new(name);
+    let path = plane_scene(&dir, Material::lambert(0.5), Some(Material::glass(None)));
+    let scene = photongrid::load(&path).unwrap_or_else(|e| panic!("{e}"));
+    let accel = photongrid::accel::Accel::for_scene(&scene);
+    (scene, accel)
+}
+
 #[test]
 fn progressive_passes_continue_the_emitting_sequences() {
     // A point light above a glass square over a floor: a photon's first hit, and its first
@@ -587,10 +597,7 @@ fn progressive_passes_continue_the_emitting_sequences() {
     // then land their direct and caustic photons exactly where one pass of 2n paths does; a
     // second pass scrambled on its own does not.
     use photongrid::photon::{trace_photons, PhotonKind, Sequences, TraceSettings};
-    let dir = TempDir::new("sequences");
-    let path = plane_scene(&dir, Material::lambert(0.5), Some(Material::glass(None)));
-    let scene = photongrid::load(&path).unwrap_or_else(|e| panic!("{e}"));
-    let accel = photongrid::accel::Accel::for_scene(&scene);
+    let (scene, accel) = glass_over_floor("sequences");
     let n = 3000; // not a whole number of the tracer's chunks
     let trace = |paths: usize, seed: u64, sequences: Sequences| {
         let settings = TraceSettings {
@@ -639,10 +646,7 @@ fn caustic_paths_that_miss_the_glass_are_counted() {
     // A point light 1 m above a 1 m glass square: the caustic pass aims at the square's
     // bounding sphere, so the share of its paths whose first hit is not the glass is one
     // minus the square's solid angle over the sphere's cone.
-    let dir = TempDir::new("caustic_missed");
-    let path = plane_scene(&dir, Material::lambert(0.5), Some(Material::glass(None)));
-    let scene = photongrid::load(&path).unwrap_or_else(|e| panic!("{e}"));
-    let accel = photongrid::accel::Accel::for_scene(&scene);
+    let (scene, accel) = glass_over_floor("caustic_missed");
     let trace = photongrid::photon::TraceSettings {
         photons: 1000,
         max_depth: 8,
