@@ -287,7 +287,7 @@ impl Default for Settings {
             ici_threshold: 2.0,
             caustic_ici_threshold: 1.0,
             stratified_ici_threshold: 0.5,
-            stratified_caustic_ici_threshold: 0.35,
+            stratified_caustic_ici_threshold: 0.12,
             cell_photons: 2.0,
             grid_cells: 4 << 20,
             light_samples: 4,

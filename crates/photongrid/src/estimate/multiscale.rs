@@ -604,8 +604,12 @@ impl MultiscaleGrids {
 pub const RESOLVED_TEXELS: usize = 128 * 128;
 
 /// Photons (per pass) the disc finer than the finest texel must be expected to hold before it
-/// is read: fewer would put grain where the kernel was right.
-const FINER_PHOTONS: f32 = 64.0;
+/// is read: fewer would put grain where the kernel was right. Caustic photons are shared with
+/// the cells around them, so a caustic line narrower than a cell reaches the kernels up to two
+/// cells away, where they hold a few dozen photons: with more required, the disc would not
+/// be read there and the line's light would be counted twice (beside it by the kernels, on it
+/// by the disc).
+const FINER_PHOTONS: f32 = 32.0;
 
 /// Radius of that disc, in fine cells, at least: a fixed disc (a convolution, like the
 /// texels) keeps a caustic's flux, where a k-nearest-neighbour disc, wider on a fold's dark

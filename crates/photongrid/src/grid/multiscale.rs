@@ -26,9 +26,10 @@ use rayon::prelude::*;
 pub struct Texel {
     /// Σ photon flux (W), per channel.
     pub flux: [f32; 3],
-    /// Σ (luminance of photon flux)²: the variance of the luminance flux sum.
+    /// Σ (luminance of photon flux)²: the variance of the luminance flux sum (a shared
+    /// caustic photon adds its share of it, [`Texel::add_photon`]).
     pub var: f32,
-    /// Photons.
+    /// Photons (a shared caustic photon adds its share).
     pub count: f32,
     /// Surface area inside (m²).
     pub area: f32,
@@ -59,6 +60,22 @@ impl Default for Texel {
 }
 
 impl Texel {
+    /// Add `share` of a photon of flux `f` that landed `d` (in cells) from the centre. Its
+    /// variance is shared like its count, not squared with it: cells that share a photon are
+    /// summed into coarser texels and read four at a time, and only a whole photon's variance
+    /// keeps those sums' variance right (one cell alone is then read as if its count were a
+    /// whole photons' count).
+    fn add_photon(&mut self, f: Rgb, d: [f32; 2], share: f32) {
+        let lum = luminance(f);
+        self.flux_moment[0] += lum * share * d[0];
+        self.flux_moment[1] += lum * share * d[1];
+        self.flux[0] += f.x * share;
+        self.flux[1] += f.y * share;
+        self.flux[2] += f.z * share;
+        self.var += lum * lum * share;
+        self.count += share;
+    }
+
     /// Its mean irradiance (luminance): flux over the surface inside.
     pub fn mean(&self) -> f32 {
         luminance(Rgb::from(self.flux)) / self.area
@@ -230,6 +247,45 @@ struct Landing {
     flux: [f32; 3],
 }
 
+/// The cells a caustic photon's count is shared between: the four whose centres surround
+/// where it landed, with bilinear weights, each with the photon's offset from its centre;
+/// cells off the surface are left out and the others' weights scaled to 1 (the landing cell
+/// alone if all are off). A photon's count then changes continuously with where it lands,
+/// and caustic photons emitted from Sobol points land so evenly that a box count's jumps at
+/// the cell sides were most of their noise (docs/multiscale.md, "Caustic photons shared
+/// between the four cells around them").
+fn bilinear_shares(l: &Landing, level: &Level) -> ([(usize, f32, [f32; 2]); 4], usize) {
+    let (w, h) = (level.w, level.h);
+    let g = [
+        (l.cell as usize % w) as f32 + 0.5 + l.d[0],
+        (l.cell as usize / w) as f32 + 0.5 + l.d[1],
+    ];
+    let (i0, i1, fx) = bilinear_axis(g[0], w);
+    let (j0, j1, fy) = bilinear_axis(g[1], h);
+    let mut shares = [(l.cell as usize, 1.0, l.d); 4];
+    let (mut n, mut total) = (0, 0.0);
+    for (i, j, weight) in [
+        (i0, j0, (1.0 - fx) * (1.0 - fy)),
+        (i1, j0, fx * (1.0 - fy)),
+        (i0, j1, (1.0 - fx) * fy),
+        (i1, j1, fx * fy),
+    ] {
+        let cell = j * w + i;
+        if weight > 0.0 && level.texels[cell].area > 0.0 {
+            shares[n] = (cell, weight, [g[0] - (i as f32 + 0.5), g[1] - (j as f32 + 0.5)]);
+            n += 1;
+            total += weight;
+        }
+    }
+    if n == 0 {
+        return ([(l.cell as usize, 1.0, l.d); 4], 1);
+    }
+    for s in &mut shares[..n] {
+        s.1 /= total;
+    }
+    (shares, n)
+}
+
 /// Why a layer's fine cells have their size (`MultiscaleGrids::describe`, `--stats`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Sizing {
@@ -305,6 +361,13 @@ impl Edges {
             Edges::DarkTrimmed => 0.75,
             Edges::Dark | Edges::Smooth => 0.5,
         }
+    }
+
+    /// Whether the layer shares each photon between the four cells around it
+    /// ([`bilinear_shares`]): caustics, whose photons land most evenly; the other layers count
+    /// whole photons (sharing was measured on caustics only).
+    fn shares_photons(self) -> bool {
+        self == Edges::Dark
     }
 
     fn of_layer(layer: usize) -> Edges {
@@ -731,20 +794,20 @@ impl LayerTexture {
         })
     }
 
-    /// Add landed photons to level 0, in their order.
+    /// Add landed photons to level 0, in their order: each to the cell it landed in, or for
+    /// caustics shared between the four cells around it ([`bilinear_shares`]).
     fn add_landed(&mut self, landed: &[Landing]) {
-        let texels = &mut self.levels[0].texels;
+        let level = &mut self.levels[0];
         for l in landed {
-            let t = &mut texels[l.cell as usize];
             let f = Rgb::from_array(l.flux);
-            let lum = luminance(f);
-            t.flux_moment[0] += lum * l.d[0];
-            t.flux_moment[1] += lum * l.d[1];
-            t.flux[0] += f.x;
-            t.flux[1] += f.y;
-            t.flux[2] += f.z;
-            t.var += lum * lum;
-            t.count += 1.0;
+            if self.edges.shares_photons() {
+                let (shares, n) = bilinear_shares(l, level);
+                for &(cell, share, d) in &shares[..n] {
+                    level.texels[cell].add_photon(f, d, share);
+                }
+            } else {
+                level.texels[l.cell as usize].add_photon(f, l.d, 1.0);
+            }
         }
     }
 
@@ -1419,8 +1482,9 @@ impl MultiscaleGrids {
         // Photons land all over the planes, whose texels can take hundreds of megabytes: a
         // chunk of them is read in blocks (in parallel), each block's landings are sorted
         // stably into runs of texels, and each texture adds its runs block by block. Every
-        // texel still sums its photons in the order they were traced, so the result does not
-        // depend on this.
+        // texel still sums its photons in the order they were traced (a caustic photon's
+        // share of a cell in a neighbouring run is added with its own run), so the result
+        // does not depend on the threads.
         let mut run_base = vec![0usize];
         for tex in self.textures.iter().flatten() {
             run_base.push(run_base.last().copied().unwrap_or(0) + tex.count_runs());
@@ -2271,8 +2335,10 @@ mod tests {
     fn photons_are_counted_in_the_order_they_were_traced() {
         // More photons than a counting block, of every layer and many powers, some without a
         // recorded triangle: every fine texel's sums are the ones a plain loop over the
-        // photons in order gives, to the last bit, and the layers' mean powers count every
-        // photon, landed or not.
+        // photons in order gives (to the last bit where each photon has one cell; a caustic
+        // photon's share of a cell in a neighbouring run of cells is added with its own run),
+        // they do not depend on the threads, and the layers' mean powers count every photon, landed or
+        // not.
         let mut rng = Rng::keyed(5, 1, 9);
         let kinds = [PhotonKind::Direct, PhotonKind::Indirect, PhotonKind::Caustic];
         let photons: Vec<Photon> = (0..COUNT_BLOCK * 2 + 1234)
@@ -2284,6 +2350,11 @@ mod tests {
             .collect();
         let triangles = vec![0u32; photons.len() - 1000];
         let g = open_square_grids(&photons, &triangles, &MultiscaleParams::default());
+        let one_thread = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .expect("a thread pool")
+            .install(|| open_square_grids(&photons, &triangles, &MultiscaleParams::default()));
         for layer in [DIRECT, INDIRECT, CAUSTIC] {
             let tex = &g.textures[0][layer];
             let mut want = vec![Texel::default(); tex.levels[0].texels.len()];
@@ -2297,16 +2368,32 @@ mod tests {
                 let Some(l) = tex.landing(p).filter(|_| i < triangles.len()) else {
                     continue;
                 };
-                let t = &mut want[l.cell as usize];
-                let lum = luminance(Rgb::from_array(l.flux));
-                t.flux[0] += l.flux[0];
-                t.flux[1] += l.flux[1];
-                t.flux[2] += l.flux[2];
-                t.var += lum * lum;
-                t.count += 1.0;
+                let f = Rgb::from_array(l.flux);
+                if layer == CAUSTIC {
+                    let (shares, n) = bilinear_shares(&l, &tex.levels[0]);
+                    for &(cell, share, d) in &shares[..n] {
+                        want[cell].add_photon(f, d, share);
+                    }
+                } else {
+                    want[l.cell as usize].add_photon(f, l.d, 1.0);
+                }
             }
             for (got, want) in tex.levels[0].texels.iter().zip(&want) {
-                assert_eq!((got.flux, got.var, got.count), (want.flux, want.var, want.count));
+                if layer == CAUSTIC {
+                    let near = |a: f32, b: f32| (a - b).abs() <= 1e-6 * b.abs();
+                    let sums = |t: &Texel| [t.flux[0], t.flux[1], t.flux[2], t.var, t.count];
+                    let (a, b) = (sums(got), sums(want));
+                    assert!(a.iter().zip(&b).all(|(a, b)| near(*a, *b)), "{a:?} vs {b:?}");
+                } else {
+                    assert_eq!((got.flux, got.var, got.count), (want.flux, want.var, want.count));
+                }
+            }
+            for (got, one) in tex.levels[0]
+                .texels
+                .iter()
+                .zip(&one_thread.textures[0][layer].levels[0].texels)
+            {
+                assert_eq!((got.flux, got.var, got.count), (one.flux, one.var, one.count));
             }
             let mean = (power / n as f64) as f32;
             assert!(
@@ -2321,6 +2408,60 @@ mod tests {
     fn lattice_grids(params: &MultiscaleParams) -> MultiscaleGrids {
         let photons = lattice_photons();
         open_square_grids(&photons, &vec![0; photons.len()], params)
+    }
+
+    #[test]
+    fn a_caustic_photon_is_shared_between_the_four_cells_around_it() {
+        // A 4 × 3 level, all on the surface but cell 7 (x 3, y 1).
+        let mut level = Level {
+            w: 4,
+            h: 3,
+            texels: vec![
+                Texel {
+                    area: 1.0,
+                    ..Texel::default()
+                };
+                12
+            ],
+            means: Vec::new(),
+        };
+        level.texels[7].area = 0.0;
+        let at = |cell: u32, d: [f32; 2]| Landing {
+            cell,
+            d,
+            flux: [1.0; 3],
+        };
+        let position = |cell: usize, d: [f32; 2]| [(cell % 4) as f32 + 0.5 + d[0], (cell / 4) as f32 + 0.5 + d[1]];
+        // Inside: bilinear weights; each share's offset places the photon where it landed.
+        let l = at(5, [0.25, -0.5]);
+        let (shares, n) = bilinear_shares(&l, &level);
+        let mut got: Vec<(usize, f32)> = shares[..n].iter().map(|s| (s.0, s.1)).collect();
+        got.sort_by_key(|s| s.0);
+        assert_eq!(got, vec![(1, 0.375), (2, 0.125), (5, 0.375), (6, 0.125)]);
+        for &(cell, _, d) in &shares[..n] {
+            assert_eq!(position(cell, d), position(5, l.d));
+        }
+        // Beside a cell off the surface: the others' weights scaled to 1.
+        let (shares, n) = bilinear_shares(&at(6, [0.5, 0.25]), &level);
+        let total: f32 = shares[..n].iter().map(|s| s.1).sum();
+        assert!(shares[..n].iter().all(|s| s.0 != 7) && n == 3, "{:?}", &shares[..n]);
+        assert!((total - 1.0).abs() < 1e-6, "{total}");
+        // At the level's corner the weight is held by the corner cell.
+        let (shares, n) = bilinear_shares(&at(0, [-0.4, -0.3]), &level);
+        assert_eq!((n, shares[0].0, shares[0].1), (1, 0, 1.0));
+        // Added: flux and count are shared, the first moment kept about each centre.
+        let mut t = Texel::default();
+        t.add_photon(Rgb::new(2.0, 2.0, 2.0), [0.5, -0.25], 0.25);
+        let near = |a: f32, b: f32| (a - b).abs() < 1e-6;
+        assert_eq!((t.flux, t.count), ([0.5; 3], 0.25));
+        let lum = luminance(Rgb::new(0.5, 0.5, 0.5));
+        assert!(
+            near(t.flux_moment[0], 0.5 * lum) && near(t.flux_moment[1], -0.25 * lum),
+            "{:?}",
+            t.flux_moment
+        );
+        let whole = luminance(Rgb::new(2.0, 2.0, 2.0));
+        assert!(near(t.var, 0.25 * whole * whole), "{}", t.var);
     }
 
     /// Grids over the 2 m square from `photons` (landed on `triangles`), nothing standing on it.
