@@ -2337,8 +2337,8 @@ mod tests {
         // recorded triangle: every fine texel's sums are the ones a plain loop over the
         // photons in order gives (to the last bit where each photon has one cell; a caustic
         // photon's share of a cell in a neighbouring run of cells is added with its own run),
-        // they do not depend on the threads, and the layers' mean powers count every photon, landed or
-        // not.
+        // they do not depend on the threads, and the layers' mean powers count every photon,
+        // landed or not.
         let mut rng = Rng::keyed(5, 1, 9);
         let kinds = [PhotonKind::Direct, PhotonKind::Indirect, PhotonKind::Caustic];
         let photons: Vec<Photon> = (0..COUNT_BLOCK * 2 + 1234)
