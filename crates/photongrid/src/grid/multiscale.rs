@@ -348,21 +348,6 @@ enum Edges {
 }
 
 impl Edges {
-    /// The lit share below which a point is on the dark side of the layer's outline
-    /// ([`on_dark_side`]). Where the outline's cells are cut to their lit share, the lit side
-    /// ends where they are lit: above one half, since a cell the outline crosses is found lit
-    /// once it holds a photon, so the outermost lit cells are lit over more than half their
-    /// area on average (unit test `the_outline_runs_straight_through_the_cells_it_crosses`).
-    /// Where they stay whole (caustics), the lit side keeps their surface: one half, which cuts
-    /// the corners of the cells' staircase as much as it adds beside them; more darkened the
-    /// caustic's outline (docs/multiscale.md, "Outlines drawn between the cells' centres").
-    fn contour(self) -> f32 {
-        match self {
-            Edges::DarkTrimmed => 0.75,
-            Edges::Dark | Edges::Smooth => 0.5,
-        }
-    }
-
     /// Whether the layer shares each photon between the four cells around it
     /// ([`bilinear_shares`]): caustics, whose photons land most evenly; the other layers count
     /// whole photons (sharing was measured on caustics only).
@@ -510,14 +495,7 @@ impl LayerTexture {
         }
         let l0 = &self.levels[0];
         // Dark cells' coverage is stashed: they have surface too.
-        on_dark_side(
-            &self.plane,
-            &self.dark,
-            |c| l0.texels[c].area > 0.0,
-            self.edges.contour(),
-            gx,
-            gy,
-        )
+        on_dark_side(&self.plane, &self.dark, |c| l0.texels[c].area > 0.0, gx, gy)
     }
 
     /// Put the dark cells' coverage back, find them again from the counts so far, and take
@@ -936,13 +914,22 @@ fn edge_areas(w: usize, h: usize, dark: &[bool], lums: &[f32], counts: &[f32], a
         .collect()
 }
 
+/// The lit share below which a point is on the dark side of an outline ([`on_dark_side`]):
+/// one half, which cuts the corners of the cells' staircase as much as it adds beside them.
+/// The direct layer took 0.75 for a while, since its outline cells are cut to their lit share
+/// and the outermost lit cells are lit over more than half on average; but a shadow edge's
+/// lit side then came out 2.1 % too dark within 10 cm (the failure-case suite; 1.3 % at one
+/// half) and more caustic outline was darkened (docs/multiscale.md, "Outlines drawn between
+/// the cells' centres").
+const OUTLINE_CONTOUR: f32 = 0.5;
+
 /// Whether fine grid coordinates `(gx, gy)` of `plane` lie on the dark side of the outline
 /// of its `dark` cells: the lit share of the four cells around the point (not dark, and with
 /// surface: `covered`, or dark), weighted bilinearly between their centres, is below
-/// `contour` ([`Edges::contour`]). Taking the point's own cell instead drew every outline
+/// [`OUTLINE_CONTOUR`]. Taking the point's own cell instead drew every outline
 /// that is not along the grid's axes as a staircase of cells, a few pixels a step where the
 /// camera sees the cells up close (the pool floor's caustic outline beside the camera).
-fn on_dark_side(plane: &Plane, dark: &[bool], covered: impl Fn(usize) -> bool, contour: f32, gx: f32, gy: f32) -> bool {
+fn on_dark_side(plane: &Plane, dark: &[bool], covered: impl Fn(usize) -> bool, gx: f32, gy: f32) -> bool {
     let (mut lit, mut surface) = (0.0f32, 0.0f32);
     for (c, w) in plane.bilinear_at(gx, gy) {
         if dark[c] {
@@ -952,7 +939,7 @@ fn on_dark_side(plane: &Plane, dark: &[bool], covered: impl Fn(usize) -> bool, c
             lit += w;
         }
     }
-    surface > 0.0 && lit < contour * surface
+    surface > 0.0 && lit < OUTLINE_CONTOUR * surface
 }
 
 /// Photons a window of cells must be expected to hold, from the light in the ring of cells
@@ -2207,11 +2194,9 @@ mod tests {
     /// across a cell, lit by 3 photons per cell on one side; points tested on a lattice of
     /// 10 × 10 per cell. The cell-by-cell test (a point is dark where its cell is) puts the
     /// outline 0.2 to 0.43 of a cell into the dark side on average, and finds 0.35 to 0.44 of
-    /// a cell per unit length on the wrong side. Where the outline's cells are cut to their
-    /// lit share (0.75), at most 0.8 times that surface at every angle, and the outline within
-    /// 0.1 of a cell on average over the angles; where they stay whole (0.5), the same
-    /// surface on each side as the cells' on average, and less on the wrong side at every
-    /// angle off the axes.
+    /// a cell per unit length on the wrong side. The outline between the cells' centres
+    /// ([`OUTLINE_CONTOUR`]) leaves the same surface on each side as the cells' on average,
+    /// and less on the wrong side at every angle off the axes.
     #[test]
     fn the_outline_runs_straight_through_the_cells_it_crosses() {
         let (w, h, per_cell) = (120usize, 120usize, 3.0f32);
@@ -2221,14 +2206,12 @@ mod tests {
         let covered = vec![true; w * h];
         let lattice =
             |r: std::ops::Range<usize>| r.flat_map(|i| (0..10).map(move |j| i as f32 + (j as f32 + 0.5) / 10.0));
-        let (trimmed, whole) = (Edges::DarkTrimmed.contour(), Edges::Dark.contour());
-        let mut mean = 0.0f32;
         for degrees in [0.0f32, 20.0, 30.0, 45.0] {
             let (sin, cos) = degrees.to_radians().sin_cos();
             // Per unit length of outline, over the middle rows and all offsets: the surface
             // found on the wrong side, signed (dark side found lit: positive) and not, by the
-            // outline at both contours and by cells.
-            let (mut signed, mut wrong) = ([0.0f32; 3], [0.0f32; 3]);
+            // outline between the centres and by cells.
+            let (mut signed, mut wrong) = ([0.0f32; 2], [0.0f32; 2]);
             let offsets = 8;
             let length = 40.0 / cos.max(sin) * offsets as f32;
             for k in 0..offsets {
@@ -2247,12 +2230,8 @@ mod tests {
                 for y in lattice(40..80) {
                     for x in lattice(20..100) {
                         let truth = lit(x, y);
-                        let found = [
-                            on_dark_side(&plane, &dark, |_| true, trimmed, x, y),
-                            on_dark_side(&plane, &dark, |_| true, whole, x, y),
-                            dark[plane.grid_cell(x, y)],
-                        ];
-                        for m in 0..3 {
+                        let found = [on_dark_side(&plane, &dark, |_| true, x, y), dark[plane.grid_cell(x, y)]];
+                        for m in 0..2 {
                             if found[m] == truth {
                                 signed[m] += if truth { -0.01 } else { 0.01 } / length;
                                 wrong[m] += 0.01 / length;
@@ -2262,18 +2241,12 @@ mod tests {
                 }
             }
             let figures = format!("{degrees}°: off on average / found wrong {signed:?} / {wrong:?}");
+            assert!((signed[0] - signed[1]).abs() < 0.01, "{figures}");
             assert!(
-                wrong[0] < 0.8 * wrong[2] && signed[0].abs() < signed[2].abs(),
+                wrong[0] <= wrong[1] && (degrees == 0.0 || wrong[0] < 0.95 * wrong[1]),
                 "{figures}"
             );
-            assert!((signed[1] - signed[2]).abs() < 0.01, "{figures}");
-            assert!(
-                wrong[1] <= wrong[2] && (degrees == 0.0 || wrong[1] < 0.95 * wrong[2]),
-                "{figures}"
-            );
-            mean += signed[0] / 4.0;
         }
-        assert!(mean.abs() < 0.1, "the outline {mean} of a cell off on average");
     }
 
     #[test]
