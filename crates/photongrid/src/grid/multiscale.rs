@@ -916,11 +916,9 @@ fn edge_areas(w: usize, h: usize, dark: &[bool], lums: &[f32], counts: &[f32], a
 
 /// The lit share below which a point is on the dark side of an outline ([`on_dark_side`]):
 /// one half, which cuts the corners of the cells' staircase as much as it adds beside them.
-/// The direct layer took 0.75 for a while, since its outline cells are cut to their lit share
-/// and the outermost lit cells are lit over more than half on average; but a shadow edge's
-/// lit side then came out 2.1 % too dark within 10 cm (the failure-case suite; 1.3 % at one
-/// half) and more caustic outline was darkened (docs/multiscale.md, "Outlines drawn between
-/// the cells' centres").
+/// More (tried for the direct layer, whose outline cells are cut to their lit share) darkened
+/// the lit side of a shadow edge in the failure-case suite, and took part of a caustic's
+/// outline off (docs/multiscale.md, "Outlines drawn between the cells' centres").
 const OUTLINE_CONTOUR: f32 = 0.5;
 
 /// Whether fine grid coordinates `(gx, gy)` of `plane` lie on the dark side of the outline
