@@ -278,7 +278,7 @@ fn bilinear_shares(l: &Landing, level: &Level) -> ([(usize, f32, [f32; 2]); 4], 
         }
     }
     if n == 0 {
-        return ([(l.cell as usize, 1.0, l.d); 4], 1);
+        return (shares, 1); // untouched: the landing cell, whole
     }
     for s in &mut shares[..n] {
         s.1 /= total;
