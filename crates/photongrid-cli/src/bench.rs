@@ -154,10 +154,10 @@ impl Workload {
 
 /// `250000` → `250k`, `2000000` → `2M`.
 pub fn human_count(n: usize) -> String {
-    if n >= 1_000_000 && n % 100_000 == 0 {
+    if n >= 1_000_000 && n.is_multiple_of(100_000) {
         let m = n as f64 / 1e6;
         format!("{}M", trim_float(m))
-    } else if n >= 1_000 && n % 100 == 0 {
+    } else if n >= 1_000 && n.is_multiple_of(100) {
         format!("{}k", trim_float(n as f64 / 1e3))
     } else {
         n.to_string()
@@ -528,7 +528,7 @@ pub fn discover(dir: &Path, only: &[String]) -> Result<Vec<SceneRefs>> {
 
 /// Integer downscale factors from a reference of `from` to `to` pixels.
 pub fn scale_factors(from: (usize, usize), to: (usize, usize)) -> Result<(usize, usize), String> {
-    let ok = to.0 > 0 && to.1 > 0 && from.0 % to.0 == 0 && from.1 % to.1 == 0;
+    let ok = to.0 > 0 && to.1 > 0 && from.0.is_multiple_of(to.0) && from.1.is_multiple_of(to.1);
     if !ok {
         return Err(format!(
             "the reference is {}×{}; the bench size {}×{} must divide it (e.g. {}×{} or {}×{})",

@@ -153,7 +153,7 @@ impl ClosestHit for RayRecorder<'_> {
         let hit = self.accel.intersect_from(origin, dir, tmax);
         if let Ok(mut rays) = self.rays.lock() {
             rays.push(WalkRay {
-                origin: origin.into(),
+                origin,
                 dir,
                 t: hit.map_or(f32::INFINITY, |h| h.t),
             });

@@ -212,7 +212,7 @@ pub fn estimate_footprint(scene: &SceneFootprint, cameras: &[&Camera], settings:
     let stored = photon_items(&mut items, scene, settings);
     grid_items(&mut items, settings, stored);
     let mut items = items.0;
-    items.sort_by(|a, b| b.bytes.cmp(&a.bytes));
+    items.sort_by_key(|i| std::cmp::Reverse(i.bytes));
     MemoryEstimate {
         items,
         limit,

@@ -358,8 +358,11 @@ pub fn resolved(path: &Path, follow_last: bool) -> PathBuf {
     out
 }
 
+/// A file's device and inode: the same file, however its path is spelt.
+type FileId = (u64, u64);
+
 /// Device and inode of the file `path` leads to, if it exists.
-fn file_id(path: &Path) -> Option<(u64, u64)> {
+fn file_id(path: &Path) -> Option<FileId> {
     use std::os::unix::fs::MetadataExt;
     std::fs::metadata(path).ok().map(|m| (m.dev(), m.ino()))
 }
@@ -371,9 +374,9 @@ fn file_id(path: &Path) -> Option<(u64, u64)> {
 #[derive(Debug, Default)]
 pub struct OutputPlan {
     /// (what, as given, resolved without the last link, resolved fully, device and inode)
-    inputs: Vec<(String, PathBuf, PathBuf, PathBuf, Option<(u64, u64)>)>,
+    inputs: Vec<(String, PathBuf, PathBuf, PathBuf, Option<FileId>)>,
     /// (what, as given, resolved without the last link, device and inode)
-    outputs: Vec<(String, PathBuf, PathBuf, Option<(u64, u64)>)>,
+    outputs: Vec<(String, PathBuf, PathBuf, Option<FileId>)>,
     by_resolved: std::collections::HashMap<PathBuf, usize>,
 }
 

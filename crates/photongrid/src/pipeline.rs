@@ -315,8 +315,12 @@ pub struct Checkpoint<'a> {
     /// Seconds between writes (0: after every pass but the last).
     pub every: f64,
     /// Write the films (one per camera, in order) after `passes` passes.
-    pub write: &'a mut dyn FnMut(&[Film], u32) -> Result<(), String>,
+    pub write: &'a mut WriteFilms<'a>,
 }
+
+/// [`Checkpoint::write`]: writes the films (one per camera, in order) after a number of
+/// passes, or says why it could not.
+pub type WriteFilms<'a> = dyn FnMut(&[Film], u32) -> Result<(), String> + 'a;
 
 /// Stored photons per emitted path is at least about one in a closed scene; 24 bytes each,
 /// held once (the index sorts them in place), plus the sort's 4-byte input index and the cell

@@ -369,11 +369,7 @@ fn load_with_light(tag: &str, light: Light, rotation: [f32; 4]) -> Scene {
 #[test]
 fn light_units_follow_units_md() {
     // Point: P / (4π) · 683 cd for P = 30 W (the cornell_glass lamp).
-    let s = load_with_light(
-        "units-point",
-        Light::point(1630.542_391_976_467_8),
-        [0.0, 0.0, 0.0, 1.0],
-    );
+    let s = load_with_light("units-point", Light::point(1_630.542_4), [0.0, 0.0, 0.0, 1.0]);
     let p = s.lights[0].power();
     assert!((p - Vec3::splat(30.0)).abs().max_element() < 30.0 * 1e-5, "{p}");
 
@@ -756,7 +752,7 @@ fn glass_sphere_neither_creates_nor_loses_energy() {
         mesh: Some(ball),
         ..Default::default()
     });
-    let l = g.light(Light::point(1630.542_4));
+    let l = g.light(Light::point(1_630.542_4));
     g.root(Node {
         light: Some(l),
         ..Default::default()
@@ -876,7 +872,7 @@ fn integrating_sphere_photon_flux_and_path_length() {
         mesh: Some(room),
         ..Default::default()
     });
-    let l = g.light(Light::point(1630.542_4));
+    let l = g.light(Light::point(1_630.542_4));
     g.root(Node {
         light: Some(l),
         ..Default::default()

@@ -254,7 +254,7 @@ fn at_mut<'a>(v: &'a mut Value, path: &[Value]) -> Option<&'a mut Value> {
 }
 
 fn number(x: f64) -> Value {
-    if x.fract() == 0.0 && x >= 0.0 && x < 1.9e19 {
+    if x.fract() == 0.0 && (0.0..1.9e19).contains(&x) {
         json!(x as u64)
     } else if x.fract() == 0.0 && x < 0.0 && x > -1e18 {
         json!(x as i64)
@@ -529,7 +529,7 @@ fn load_never_panics_hangs_or_blows_up() {
 
 /// Append `bytes` to the buffer (4-byte aligned) as a new bufferView; returns its index.
 fn push_view(doc: &mut Value, bin: &mut Vec<u8>, bytes: &[u8]) -> usize {
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     let offset = bin.len();

@@ -216,9 +216,12 @@ fn position_accessor_out_of_range() {
     );
 }
 
+/// A named edit of a document and the element its error must name.
+type Case = (&'static str, fn(&mut Value), &'static str);
+
 #[test]
 fn indices_out_of_range_everywhere() {
-    let cases: [(&str, fn(&mut Value), &str); 8] = [
+    let cases: [Case; 8] = [
         ("mesh", |d| d["nodes"][0]["mesh"] = json!(5), "nodes[0].mesh"),
         (
             "child",
@@ -256,7 +259,7 @@ fn indices_out_of_range_everywhere() {
 
 /// A 2×2 PNG stored in the GLB chunk as images[0], used by materials[0] as base colour.
 fn with_embedded_image(doc: &mut Value, bin: &mut Vec<u8>) {
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     let png = png_bytes(2, 2, 3, &[200; 12]);

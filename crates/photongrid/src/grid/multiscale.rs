@@ -141,7 +141,7 @@ impl Level {
     fn coarser(&self, side: f32) -> Level {
         let (w, h) = (self.w.div_ceil(2), self.h.div_ceil(2));
         let mut texels = vec![Texel::default(); w * h];
-        let half = |i: usize| if i % 2 == 0 { -0.5 * side } else { 0.5 * side };
+        let half = |i: usize| if i.is_multiple_of(2) { -0.5 * side } else { 0.5 * side };
         for y in 0..self.h {
             for x in 0..self.w {
                 let child = self.texels[y * self.w + x].shifted([half(x), half(y)]);
@@ -1179,8 +1179,12 @@ pub struct Probes<'a> {
     /// The open space in front of `p` (m): how far a kernel may reach there before it spans
     /// light that something standing near the plane changes. Only surfaces met at points the
     /// third argument accepts count.
-    pub clearance: &'a (dyn Fn(Vec3, Vec3, &dyn Fn(Vec3) -> bool) -> f32 + Sync),
+    pub clearance: &'a Clearance<'a>,
 }
+
+/// [`Probes::clearance`]: the open space (m) in front of a point with a normal, counting the
+/// surfaces met at points the filter accepts.
+pub type Clearance<'a> = dyn Fn(Vec3, Vec3, &dyn Fn(Vec3) -> bool) -> f32 + Sync + 'a;
 
 /// Whether `plane` has surface (`cells` with area) behind the point `hit` seen from `p`
 /// within `reach` (m) of `p`: along the in-plane direction from `p` to `hit`'s foot, from one

@@ -862,13 +862,13 @@ mod tests {
                     .flat_map(|i| points(&rs, &[(64 * i, 0)], 0..samples, 8))
                     .collect();
                 sum_shared += shared;
-                se_shared += (shared - truth as f64).powi(2);
-                se_own += (mean_of(&own) - truth as f64).powi(2);
+                se_shared += (shared - truth).powi(2);
+                se_own += (mean_of(&own) - truth).powi(2);
             }
             let mean = sum_shared / trials as f64;
             let sd = (se_shared / trials as f64).sqrt();
             assert!(
-                (mean - truth as f64).abs() < 4.0 * sd / (trials as f64).sqrt() + 1e-6,
+                (mean - truth).abs() < 4.0 * sd / (trials as f64).sqrt() + 1e-6,
                 "{samples}: mean {mean}"
             );
             // Whole runs: far better; parts of runs: about as good, never much worse.

@@ -74,7 +74,7 @@ mod tests {
     #[test]
     fn blender_point_light_round_trip() {
         // 30 W point exported as W/(4π)·683 cd (cornell_glass: 1630.5423919764678 cd).
-        let i = candela_to_radiant_intensity(1630.542_4);
+        let i = candela_to_radiant_intensity(1_630.542_4);
         assert!((point_flux(i) - 30.0).abs() < 1e-3, "{}", point_flux(i));
     }
 

@@ -251,7 +251,7 @@ impl Loader<'_> {
     fn triangulate(&mut self, mode: Mode, indices: &[u32], element: &str) -> Vec<[u32; 3]> {
         match mode {
             Mode::Triangles => {
-                if indices.len() % 3 != 0 {
+                if !indices.len().is_multiple_of(3) {
                     self.report.ignored.push(format!(
                         "{element}: {} trailing indices (not a multiple of 3)",
                         indices.len() % 3
