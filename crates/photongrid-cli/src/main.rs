@@ -66,7 +66,8 @@ enum Command {
     Bench(BenchArgs),
     /// This machine's limits against a render: closest-hit rays/s through the BVH for the
     /// photon pass's own rays, shadow rays/s, kNN queries/s on the photon index, and the same
-    /// phases' rates inside a real render of the classic pipeline, with their ratio.
+    /// phases' rates inside a real render of the classic pipeline, with their ratio, and the
+    /// render's floor: its phases' seconds with the photon pass at the BVH's rate.
     Throughput(ThroughputArgs),
     /// Print the render settings: their defaults (jobs-file keys), or with --schema a JSON
     /// description of each (flag, heading, help, default, choices) for front ends such as the

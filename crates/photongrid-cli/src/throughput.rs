@@ -132,6 +132,24 @@ pub struct SceneThroughput {
     /// Photon-pass rays per second per thread ÷ pure closest-hit rays per second per thread
     /// (all threads busy in both).
     pub photon_pass_ratio: f64,
+    /// Seconds of the real render's three phases (photon pass, index build, camera pass).
+    pub phases_seconds: f64,
+    /// The same with the photon pass at the pure closest-hit rate and nothing else in it
+    /// ([`floor_seconds`]).
+    pub floor_seconds: f64,
+}
+
+/// Seconds of `render`'s phases had its photon pass traced its rays at `closest_hit`'s rate
+/// on `threads` threads and done nothing else (the index build and camera pass as measured):
+/// what no saving in the photon pass's own work can take the render below.
+pub fn floor_seconds(render: &RenderRates, closest_hit: &Rate, threads: usize) -> f64 {
+    let rays_per_second = closest_hit.per_thread_all * threads.max(1) as f64;
+    let photons = if rays_per_second > 0.0 {
+        render.photon_rays as f64 / rays_per_second
+    } else {
+        f64::INFINITY
+    };
+    photons + render.build_seconds + render.render_seconds
 }
 
 /// A recorded ray: origin, unit direction, and the distance to what it hit (∞ for a miss).
@@ -338,14 +356,17 @@ pub fn measure(path: &Path, opts: &ThroughputOptions) -> Result<SceneThroughput>
     } else {
         0.0
     };
+    let threads = rayon::current_num_threads();
     Ok(SceneThroughput {
         scene: path.display().to_string(),
         triangles: scene.triangles.len(),
-        threads: rayon::current_num_threads(),
+        threads,
         closest_hit,
         shadow,
         knn,
         indexed,
+        phases_seconds: render.photons_seconds + render.build_seconds + render.render_seconds,
+        floor_seconds: floor_seconds(&render, &closest_hit, threads),
         render,
         photon_pass_ratio,
     })
@@ -365,14 +386,14 @@ pub fn table_md(results: &[SceneThroughput]) -> String {
     let mut s = String::from(
         "| scene | triangles | closest-hit rays/s (1 thread / per thread of all) | shadow rays/s (1 / per thread) \
          | kNN queries/s (1 / per thread) | photon pass rays/s per thread | ratio | index build photons/s \
-         | camera samples/s per thread |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+         | camera samples/s per thread | phases s (floor) |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for r in results {
         let name = Path::new(&r.scene)
             .file_stem()
             .map_or(r.scene.clone(), |n| n.to_string_lossy().into());
         s += &format!(
-            "| {name} | {} | {} / {} | {} / {} | {} / {} | {} | {:.2} | {} | {} |\n",
+            "| {name} | {} | {} / {} | {} / {} | {} / {} | {} | {:.2} | {} | {} | {:.2} ({:.2}) |\n",
             r.triangles,
             mega(r.closest_hit.one_thread),
             mega(r.closest_hit.per_thread_all),
@@ -384,6 +405,8 @@ pub fn table_md(results: &[SceneThroughput]) -> String {
             r.photon_pass_ratio,
             mega(r.render.build_photons_per_second),
             mega(r.render.samples_per_thread),
+            r.phases_seconds,
+            r.floor_seconds,
         );
     }
     s
@@ -392,6 +415,24 @@ pub fn table_md(results: &[SceneThroughput]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_floor_traces_the_photon_rays_at_the_bvh_rate_and_keeps_the_other_phases() {
+        let render = RenderRates {
+            photon_rays: 12_000_000,
+            photons_seconds: 2.0,
+            build_seconds: 0.5,
+            render_seconds: 0.25,
+            ..RenderRates::default()
+        };
+        let bvh = Rate {
+            one_thread: 7e6,
+            per_thread_all: 6e6,
+        };
+        // 12 M rays at 2 × 6 M rays/s: 1 s.
+        assert!((floor_seconds(&render, &bvh, 2) - 1.75).abs() < 1e-12);
+        assert_eq!(floor_seconds(&render, &Rate::default(), 2), f64::INFINITY);
+    }
 
     #[test]
     fn the_recorded_rays_are_the_photon_pass_rays() {
