@@ -139,9 +139,9 @@ pub struct SceneThroughput {
     pub floor_seconds: f64,
 }
 
-/// Seconds of `render`'s phases had its photon pass traced its rays at `closest_hit`'s rate
+/// Seconds of `render`'s phases if its photon pass had traced its rays at `closest_hit`'s rate
 /// on `threads` threads and done nothing else (the index build and camera pass as measured):
-/// what no saving in the photon pass's own work can take the render below.
+/// no saving in the photon pass's own work can take the render below it.
 pub fn floor_seconds(render: &RenderRates, closest_hit: &Rate, threads: usize) -> f64 {
     let rays_per_second = closest_hit.per_thread_all * threads.max(1) as f64;
     let photons = if rays_per_second > 0.0 {

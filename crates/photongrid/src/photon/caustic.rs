@@ -245,8 +245,8 @@ impl Cones {
         }
         let j = self.choice.sample(rng.uniform());
         let d = sampling::uniform_cone(rng.uniform2(), self.cones[j].1, self.cones[j].0);
-        // Cone `j` counts even where rounding puts `d` a hair outside it (its density was
-        // then missing, and a few photons in a million carried 10³⁰ times their flux).
+        // Cone `j` counts even where rounding puts `d` a hair outside it (else the density
+        // misses it and the flux is divided by 10⁻³⁰).
         let pdf: f32 = self
             .cones
             .iter()
