@@ -292,7 +292,7 @@ impl Default for Settings {
             grid_cells: 4 << 20,
             light_samples: 4,
             max_specular_depth: 12,
-            split_depth: 2,
+            split_depth: 3,
             gather: 8,
             gather_neighbours: 64,
             gather_stride: 12,
